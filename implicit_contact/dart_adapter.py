@@ -1,0 +1,418 @@
+"""The only module that imports dartpy: DART world <-> the stepper's plain data.
+
+What DART keeps doing: mass matrices, Coriolis and gravity forces, external and joint forces,
+position integration (`integratePositions`), world time. What this module adds:
+
+* ``attach(body_node, shape, friction=...)`` stores an implicit shape on a body. The shape is
+  written, as JSON, into the name of a visual-only ShapeNode (prefix ``implicit_contact:``), so the
+  world carries it itself: no global registry, and ``World.clone()`` keeps it.
+* DART primitive ShapeNodes that have a collision aspect (what DART's own detector would collide)
+  are mapped to implicit surfaces: Sphere, Ellipsoid, Cylinder (a capped cylinder, an intersection
+  of three functions), Box (an intersection of six half-spaces), Plane (a half-space). On a
+  PlanarJoint body a z-axis cylinder or a sphere becomes a disc and a box a rectangle, so the
+  paper's planar scenes can use DART primitives.
+* Body kinds: a FreeJoint root (6 dofs), a PlanarJoint root in the XY plane (3 dofs [x, y, theta]),
+  and fixed bodies (WeldJoint roots, immobile skeletons). Everything else is refused when the
+  stepper is built, with a sentence saying what is supported.
+
+The FreeJoint velocity convention changed between dartpy releases; this module measures it at
+start-up (``check_free_joint_convention``) and refuses a convention it was not written for.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import json
+import math
+
+import dartpy as dart
+import numpy as np
+
+from . import shapes as shp
+from .params import Friction
+
+SHAPE_NODE_PREFIX = "implicit_contact:"
+DEFAULT_DART_MU = 1.0  # DART's DynamicsAspect default friction coefficient
+
+FREE, PLANAR, FIXED = "free", "planar", "fixed"
+
+
+# --------------------------------------------------------------------------------------------
+# attach
+# --------------------------------------------------------------------------------------------
+def attach(body_node, shape, friction: Friction | None = None, compliance=None, name: str | None = None):
+    """Give ``body_node`` the implicit surface ``shape`` (body frame) for the implicit stepper.
+
+    friction: the body's ``ic.Friction`` (default mu = 0); a pair uses the smaller mu of its two
+    bodies unless ``stepper.set_pair_friction`` overrides it. compliance: an ``ic.Compliance`` for a
+    quasi-rigid body (see the quasi-rigid issue); None for rigid. Returns the DART ShapeNode that
+    stores the shape (visual only: DART's own detector ignores it).
+    """
+    if not isinstance(shape, (shp.ConvexFunction, shp.Intersection, shp.Union)):
+        raise ValueError(f"attach() needs an implicit_contact.shapes shape, got {type(shape).__name__}")
+    friction = Friction() if friction is None else friction
+    if not isinstance(friction, Friction):
+        raise ValueError(f"friction must be an ic.Friction, got {type(friction).__name__}")
+    record = {"shape": shape.to_dict(), "friction": friction.to_dict()}
+    if compliance is not None:
+        record["compliance"] = compliance.to_dict()
+    if name is not None:
+        record["name"] = str(name)
+    node = body_node.createShapeNode(_visual_proxy(shape))
+    node.setName(SHAPE_NODE_PREFIX + json.dumps(record, separators=(",", ":")))
+    node.createVisualAspect()
+    return node
+
+
+def _visual_proxy(shape):
+    """A DART shape for viewers only: the implicit body's bounding box (or a sphere)."""
+    if isinstance(shape, shp.Sphere):
+        return dart.dynamics.SphereShape(float(shape.radius))
+    lo, hi = shape.aabb(np.eye(shape.dim), np.zeros(shape.dim))
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    size = np.where(np.isfinite(hi - lo), hi - lo, 10.0)
+    if shape.dim == 2:
+        size = np.append(size, 0.1)
+    return dart.dynamics.BoxShape(np.maximum(size, 1e-3))
+
+
+def _parse_record(node_name: str) -> dict:
+    text = node_name[len(SHAPE_NODE_PREFIX):]
+    # DART makes names unique by appending "(k)": keep the JSON object only.
+    text = text[: text.rfind("}") + 1]
+    return json.loads(text)
+
+
+# --------------------------------------------------------------------------------------------
+# DART primitives -> implicit surfaces
+# --------------------------------------------------------------------------------------------
+def _placement(node):
+    T = node.getRelativeTransform().matrix()
+    return T[:3, :3].copy(), T[:3, 3].copy()
+
+
+def implicit_from_dart_shape(dart_shape, rotation, translation, planar: bool):
+    """Map a DART primitive (placed by ``rotation``, ``translation`` in its body) to a shape.
+
+    planar: the body moves in the XY plane; the result is then a 2D section, which needs the
+    primitive's axis along z (cylinder, box) or any orientation (sphere).
+    """
+    kind = dart_shape.getType()
+    R, c = np.asarray(rotation, float), np.asarray(translation, float)
+    if planar:
+        if not np.allclose(R[2], [0.0, 0.0, 1.0], atol=1e-12):
+            raise ValueError(f"a {kind} on a planar body must keep its z axis along the plane normal")
+        angle = math.atan2(R[1, 0], R[0, 0])
+        if kind == "SphereShape":
+            return shp.Disc(dart_shape.getRadius(), center=c[:2])
+        if kind == "CylinderShape":
+            return shp.Disc(dart_shape.getRadius(), center=c[:2])
+        if kind == "EllipsoidShape":
+            d = np.asarray(dart_shape.getDiameters(), float)
+            return shp.Ellipse(d[:2] / 2.0, center=c[:2], rotation=angle)
+        if kind == "BoxShape":
+            size = np.asarray(dart_shape.getSize(), float)
+            return _placed_rectangle(size[:2] / 2.0, c[:2], angle)
+        raise ValueError(f"{kind} is not supported on a planar body: supported are SphereShape, "
+                         "CylinderShape, EllipsoidShape and BoxShape, or attach a 2D implicit shape "
+                         "with ic.attach(body_node, ic.shapes.Disc(...)).")
+    if kind == "SphereShape":
+        return shp.Sphere(dart_shape.getRadius(), center=c, rotation=R)
+    if kind == "EllipsoidShape":
+        return shp.Ellipsoid(np.asarray(dart_shape.getDiameters(), float) / 2.0, center=c, rotation=R)
+    if kind == "CylinderShape":
+        return _placed_intersection(
+            shp.Intersection.capped_cylinder(dart_shape.getRadius(), dart_shape.getHeight() / 2.0), R, c)
+    if kind == "BoxShape":
+        return _placed_intersection(
+            shp.Intersection.box(np.asarray(dart_shape.getSize(), float) / 2.0), R, c)
+    if kind == "PlaneShape":
+        n = R @ np.asarray(dart_shape.getNormal(), float)
+        return shp.HalfSpace(n, float(dart_shape.getOffset()) + float(n @ c))
+    raise ValueError(f"{kind} is not supported by the implicit stepper: supported DART primitives are "
+                     "SphereShape, EllipsoidShape, CylinderShape, BoxShape and PlaneShape; for meshes "
+                     "and other shapes attach an implicit surface with ic.attach(body_node, shape).")
+
+
+def _placed_intersection(inter, R, c):
+    """Re-place every function of an intersection by (R, c) inside the body."""
+    parts = [shp.shape_from_dict(_compose_placement(f.to_dict(), R, c)) for f in inter.functions]
+    return shp.Intersection(parts)
+
+
+def _placed_rectangle(half, c, angle):
+    ca, sa = math.cos(angle), math.sin(angle)
+    Rz = np.array([[ca, -sa], [sa, ca]])
+    normals = [Rz @ np.array(v) for v in ((1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0))]
+    offsets = [half[0], half[0], half[1], half[1]]
+    return shp.Intersection([shp.HalfPlane(n, o + float(n @ c)) for n, o in zip(normals, offsets)])
+
+
+def _compose_placement(d: dict, R, c) -> dict:
+    """Compose a shape dict's own placement with a body placement (R, c)."""
+    d = dict(d)
+    if d["type"] in ("HalfSpace", "HalfPlane"):
+        n = R @ np.asarray(d["normal"], float)
+        d["normal"] = n.tolist()
+        d["offset"] = float(d["offset"]) + float(n @ c)
+        return d
+    R0 = np.asarray(d.get("rotation") if d.get("rotation") is not None else np.eye(3), float)
+    c0 = np.asarray(d.get("center") if d.get("center") is not None else np.zeros(3), float)
+    d["rotation"] = (R @ R0).tolist()
+    d["center"] = (R @ c0 + c).tolist()
+    return d
+
+
+# --------------------------------------------------------------------------------------------
+# Scene description
+# --------------------------------------------------------------------------------------------
+@dataclass
+class ContactShape:
+    """One implicit shape on one body, as the stepper sees it."""
+    shape: object              # ConvexFunction | Intersection | Union, body frame
+    friction: Friction
+    compliance: object = None
+    label: str = ""
+
+
+@dataclass
+class BodyRecord:
+    """A body that carries contact shapes."""
+    index: int
+    body_node: object
+    skeleton: object
+    skeleton_index: int        # index into Scene.skeletons, or -1 for a fixed body
+    kind: str                  # FREE | PLANAR | FIXED
+    dim: int                   # 3, or 2 for planar bodies
+    shapes: list = field(default_factory=list)
+    name: str = ""
+
+
+@dataclass
+class SkeletonRecord:
+    skeleton: object
+    kind: str
+    ndof: int
+    body_index: int            # the BodyRecord of its single body, or -1 if it has no shapes
+
+
+@dataclass
+class Scene:
+    skeletons: list            # mobile skeletons stepped by the stepper
+    bodies: list               # bodies with contact shapes (mobile and fixed)
+
+
+def _joint_kind(skel) -> str:
+    if skel.getNumDofs() == 0 or not skel.isMobile():
+        return FIXED
+    if skel.getNumBodyNodes() != 1:
+        raise ValueError(
+            f"skeleton '{skel.getName()}' has {skel.getNumBodyNodes()} bodies: the implicit stepper "
+            "supports single-body skeletons with a FreeJoint or PlanarJoint root and fixed bodies; "
+            "articulated skeletons are not supported yet.")
+    joint = skel.getJoint(0)
+    jtype = joint.getType()
+    offsets_identity = (np.allclose(joint.getTransformFromParentBodyNode().matrix(), np.eye(4))
+                        and np.allclose(joint.getTransformFromChildBodyNode().matrix(), np.eye(4)))
+    if jtype == "FreeJoint":
+        if not offsets_identity:
+            raise ValueError(f"the FreeJoint of '{skel.getName()}' has non-identity parent/child "
+                             "offsets; the implicit stepper needs identity offsets on a FreeJoint.")
+        return FREE
+    if jtype == "PlanarJoint":
+        if not offsets_identity or str(joint.getPlaneType()).split(".")[-1] != "XY":
+            raise ValueError(f"the PlanarJoint of '{skel.getName()}' must be in the XY plane "
+                             "(joint.setXYPlane()) with identity offsets; set gravity along -y.")
+        return PLANAR
+    raise ValueError(f"joint type {jtype} of skeleton '{skel.getName()}' is not supported: supported "
+                     "roots are FreeJoint, PlanarJoint (XY plane) and WeldJoint (fixed).")
+
+
+def scan_world(world) -> Scene:
+    """Find every body with contact shapes; validate joints, masses and shape dimensions."""
+    skeletons, bodies = [], []
+    for s in range(world.getNumSkeletons()):
+        skel = world.getSkeleton(s)
+        kind = _joint_kind(skel)
+        sk_index = -1
+        if kind != FIXED:
+            sk_index = len(skeletons)
+            skeletons.append(SkeletonRecord(skel, kind, skel.getNumDofs(), -1))
+        for b in range(skel.getNumBodyNodes()):
+            node = skel.getBodyNode(b)
+            found = _shapes_of(node, planar=(kind == PLANAR))
+            if not found:
+                continue
+            dims = {cs.shape.dim for cs in found}
+            want = 2 if kind == PLANAR else None
+            if kind == PLANAR and dims != {2}:
+                raise ValueError(f"body '{node.getName()}' is on a PlanarJoint and needs 2D shapes "
+                                 "(Disc, Ellipse, Superellipse, HalfPlane, rectangles).")
+            if kind == FREE and dims != {3}:
+                raise ValueError(f"body '{node.getName()}' is on a FreeJoint and needs 3D shapes; 2D "
+                                 "shapes need a PlanarJoint body.")
+            if kind == FIXED and len(dims) != 1:
+                raise ValueError(f"fixed body '{node.getName()}' mixes 2D and 3D shapes; give it one kind.")
+            dim = want or dims.pop()
+            if kind != FIXED:
+                _check_mass(node)
+            rec = BodyRecord(len(bodies), node, skel, sk_index, kind, dim, found,
+                             name=f"{skel.getName()}/{node.getName()}")
+            bodies.append(rec)
+            if sk_index >= 0:
+                skeletons[sk_index].body_index = rec.index
+    return Scene(skeletons, bodies)
+
+
+def _check_mass(node):
+    m = node.getMass()
+    moment = np.asarray(node.getInertia().getMoment(), float)
+    if not (math.isfinite(m) and m > 0):
+        raise ValueError(f"body '{node.getName()}' has mass {m}: masses must be positive and finite.")
+    eig = np.linalg.eigvalsh(0.5 * (moment + moment.T)) if np.all(np.isfinite(moment)) else [np.nan]
+    if not np.all(np.isfinite(eig)) or min(eig) <= 0:
+        raise ValueError(f"body '{node.getName()}' has a rotational inertia that is not positive "
+                         f"definite (eigenvalues {np.round(eig, 12)}).")
+
+
+def _shapes_of(node, planar: bool) -> list:
+    found = []
+    for k in range(node.getNumShapeNodes()):
+        sn = node.getShapeNode(k)
+        name = sn.getName()
+        if name.startswith(SHAPE_NODE_PREFIX):
+            rec = _parse_record(name)
+            found.append(ContactShape(shp.shape_from_dict(rec["shape"]), Friction(**rec["friction"]),
+                                      rec.get("compliance"), rec.get("name", name)))
+        elif sn.hasCollisionAspect():
+            R, c = _placement(sn)
+            shape = implicit_from_dart_shape(sn.getShape(), R, c, planar)
+            mu = sn.getDynamicsAspect().getFrictionCoeff() if sn.hasDynamicsAspect() else DEFAULT_DART_MU
+            found.append(ContactShape(shape, Friction(mu=float(mu)), None, name))
+    return found
+
+
+# --------------------------------------------------------------------------------------------
+# FreeJoint convention
+# --------------------------------------------------------------------------------------------
+def check_free_joint_convention() -> None:
+    """Measure dartpy's FreeJoint velocity convention; raise if it is not [omega_w; v_w].
+
+    The stepper assumes (dartpy 6.20): generalized velocity = [angular velocity; origin velocity],
+    both in the world frame, world Jacobian of the body origin = I6, and integratePositions doing
+    R+ = exp(h [omega]x) R, p+ = p + h v. Earlier wheels (6.16) used body-frame velocities.
+    """
+    skel = dart.dynamics.Skeleton("implicit_contact_convention_probe")
+    _, body = skel.createFreeJointAndBodyNodePair()
+    R0 = rotation_exp(np.array([0.3, -0.5, 0.7]))
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R0, [0.1, 0.2, 0.3]
+    skel.getJoint(0).setTransform(dart.math.Isometry3(T)) if hasattr(dart.math, "Isometry3") else \
+        skel.setPositions(np.concatenate([rotation_log(R0), [0.1, 0.2, 0.3]]))
+    w, v, h = np.array([0.4, 1.1, -0.6]), np.array([1.0, -2.0, 0.5]), 0.05
+    skel.setVelocities(np.concatenate([w, v]))
+    J = skel.getWorldJacobian(body, np.zeros(3))
+    skel.integratePositions(h)
+    T1 = body.getWorldTransform().matrix()
+    ok = (np.allclose(J, np.eye(6), atol=1e-12)
+          and np.allclose(T1[:3, :3], rotation_exp(h * w) @ R0, atol=1e-12)
+          and np.allclose(T1[:3, 3], np.array([0.1, 0.2, 0.3]) + h * v, atol=1e-12))
+    if not ok:
+        raise RuntimeError(
+            f"this dartpy ({getattr(dart, '__version__', '?')}) uses a FreeJoint velocity convention "
+            "other than [omega_world; v_world] with R+ = exp(h w) R: implicit_contact needs "
+            "dartpy==6.20.0 (pip install dartpy==6.20.0).")
+
+
+# --------------------------------------------------------------------------------------------
+# SO(3) helpers (numpy only, shared with the formulation)
+# --------------------------------------------------------------------------------------------
+def rotation_exp(phi: np.ndarray) -> np.ndarray:
+    """Rodrigues: exp([phi]x)."""
+    phi = np.asarray(phi, float)
+    th = math.sqrt(float(phi @ phi))
+    K = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
+    if th < 1e-8:
+        return np.eye(3) + K + 0.5 * K @ K
+    return np.eye(3) + (math.sin(th) / th) * K + ((1.0 - math.cos(th)) / th**2) * K @ K
+
+
+def rotation_log(R: np.ndarray) -> np.ndarray:
+    c = max(-1.0, min(1.0, (np.trace(R) - 1.0) / 2.0))
+    th = math.acos(c)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if th < 1e-8:
+        return 0.5 * w
+    return th / (2.0 * math.sin(th)) * w
+
+
+# --------------------------------------------------------------------------------------------
+# State in, state out
+# --------------------------------------------------------------------------------------------
+@dataclass
+class SkeletonState:
+    q: np.ndarray
+    v: np.ndarray
+    M: np.ndarray
+    force: np.ndarray          # tau + tau_ext - (Coriolis + gravity), generalized, at l
+    R: np.ndarray | None       # world pose of its contact body at l (3x3), or None
+    p: np.ndarray | None
+
+
+def read_skeleton(rec: SkeletonRecord, body: BodyRecord | None) -> SkeletonState:
+    skel = rec.skeleton
+    q = np.asarray(skel.getPositions(), float)
+    v = np.asarray(skel.getVelocities(), float)
+    M = np.asarray(skel.getMassMatrix(), float)
+    force = (np.asarray(skel.getForces(), float) + np.asarray(skel.getExternalForces(), float)
+             - np.asarray(skel.getCoriolisAndGravityForces(), float))
+    R = p = None
+    if body is not None:
+        T = body.body_node.getWorldTransform().matrix()
+        R, p = T[:3, :3].copy(), T[:3, 3].copy()
+    return SkeletonState(q, v, M, force, R, p)
+
+
+def body_pose(body: BodyRecord):
+    T = body.body_node.getWorldTransform().matrix()
+    return T[:3, :3].copy(), T[:3, 3].copy()
+
+
+@dataclass
+class WorldSnapshot:
+    time: float
+    skeletons: list            # (skeleton, q, v, dv, commands)
+
+
+def snapshot(world) -> WorldSnapshot:
+    items = []
+    for s in range(world.getNumSkeletons()):
+        sk = world.getSkeleton(s)
+        items.append((sk, np.array(sk.getPositions()), np.array(sk.getVelocities()),
+                      np.array(sk.getAccelerations()), np.array(sk.getForces())))
+    return WorldSnapshot(world.getTime(), items)
+
+
+def restore(world, snap: WorldSnapshot) -> None:
+    for sk, q, v, dv, tau in snap.skeletons:
+        sk.setPositions(q)
+        sk.setVelocities(v)
+        sk.setAccelerations(dv)
+        sk.setForces(tau)
+    world.setTime(snap.time)
+
+
+def write_velocities_and_integrate(rec: SkeletonRecord, v_next: np.ndarray, v_prev: np.ndarray, h: float):
+    """Write v+ and let DART integrate q+ = q (+) h v+ (its integrator is the one the formulation models)."""
+    skel = rec.skeleton
+    skel.setVelocities(v_next)
+    skel.setAccelerations((v_next - v_prev) / h)
+    skel.integratePositions(h)
+
+
+def finish_step(world, h: float) -> None:
+    """What World.step() does after integrating: clear external forces and commands, advance time."""
+    for s in range(world.getNumSkeletons()):
+        sk = world.getSkeleton(s)
+        sk.clearExternalForces()
+        sk.clearInternalForces()
+    world.setTime(world.getTime() + h)

@@ -1,0 +1,566 @@
+"""ImplicitContactStepper: steps a DART world with one geometrically implicit MCP per step.
+
+One step, as a table of contents (DESIGN.md, "One step, as data flows")::
+
+    snapshot = adapter.snapshot(world)                  # the world as it was, for any failure
+    state    = self._read()                             # q, v, M, forces at l (DART)
+    pairs    = self._candidates(state, h)               # coal broadphase on grown AABBs
+    problem  = formulation.StepProblem(...)             # only the rows the pairs need
+    result   = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper)
+    commit or restore                                   # write v+, integrate q+ = q (+) h v+
+
+Skeletons without candidate pairs take the exact free step v+ = v + h M^{-1} force (the same
+semi-implicit Euler step DART takes), and a step with no pair near builds no MCP at all.
+
+Friction rows of a pair are built when the pair can be in contact in this step (it was in contact
+at the last step, or its bodies are within the motion margin). A pair whose gap is open at the
+solution has p_n = 0, and with the friction rows present its sigma is then undetermined; so a pair
+whose rows were left out but whose solution has p_n > 0 is given its rows and the step solved again
+(warm), and a pair with rows but an open gap is checked, not trusted: |p_t| <= mu p_n + tol.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import warnings
+
+import numpy as np
+from scipy.optimize import nnls
+
+from . import dart_adapter as adapter
+from . import formulation as fm
+from . import ncp
+from . import shapes as shp
+from .broadphase import Broadphase
+from .params import Friction
+
+
+# ---------------------------------------------------------------------------------------------
+# options and reports
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class StepperOptions:
+    """contact_tolerance [m]: allowed penetration and the broadphase's extra margin (1e-9..1e-4).
+    solver: options of the MCP solver (natural-residual tolerance, iterations).
+    max_halvings: retry policy, how many times h may be halved (up to 2**max_halvings substeps).
+    check_penetration_at_start: refuse worlds whose bodies overlap when the stepper is built.
+    """
+    contact_tolerance: float = 1e-6
+    solver: ncp.SolverOptions = field(default_factory=lambda: ncp.SolverOptions(tol=1e-10, max_iterations=50))
+    max_halvings: int = 4
+    check_penetration_at_start: bool = True
+
+    def __post_init__(self):
+        if not (self.contact_tolerance > 0 and math.isfinite(self.contact_tolerance)):
+            raise ValueError(f"contact_tolerance must be a positive length, got {self.contact_tolerance}")
+        if not (isinstance(self.max_halvings, int) and 0 <= self.max_halvings <= 12):
+            raise ValueError(f"max_halvings must be an integer in 0..12, got {self.max_halvings}")
+
+
+@dataclass(frozen=True)
+class ContactReport:
+    """One candidate pair at the end of the step (world frame, physical units, impulses [N s])."""
+    body_a: object
+    body_b: object
+    a1: np.ndarray
+    a2: np.ndarray
+    normal: np.ndarray         # unit, from body_a into body_b
+    gap: float                 # f_a(a2): algebraic distance, ~metres for normalised shapes
+    p_n: float
+    p_t: float
+    p_o: float
+    p_r: float
+    sigma: float
+    slip: float                # |tangential slip velocity| at l+1 [m/s]
+    name_a: str = ""
+    name_b: str = ""
+
+    @property
+    def active(self) -> bool:
+        return self.p_n > 0.0
+
+
+@dataclass(frozen=True)
+class StepReport:
+    success: bool
+    iterations: int
+    residual: float
+    status: str
+    contacts: tuple
+    time: float
+    substeps: int = 1
+    message: str = ""
+    unknowns: int = 0
+
+
+class StepFailure(RuntimeError):
+    """The MCP of a step could not be solved; the world is exactly as before the call."""
+
+    def __init__(self, message, report=None):
+        super().__init__(message)
+        self.report = report
+
+
+POLICIES = ("raise", "warn", "retry")
+_TOUCH = 1e-9   # scaled normal impulse (units of h m g) above which a pair counts as touching
+
+
+# ---------------------------------------------------------------------------------------------
+# the stepper
+# ---------------------------------------------------------------------------------------------
+class ImplicitContactStepper:
+    """Replaces DART's collision detection + boxed LCP with the [GI] mixed NCP step.
+
+    world: a dartpy.simulation.World; the stepper finds shapes attached with ``ic.attach`` and
+    DART primitive ShapeNodes with a collision aspect.
+    on_failure: "raise" (default) raises StepFailure; "warn" warns and returns a failed report;
+    "retry" takes 2, 4, ... substeps of halved h (at most 2**max_halvings) and raises if those fail.
+    In every case a failed step leaves the world exactly as it was.
+    """
+
+    def __init__(self, world, on_failure: str = "raise", options: StepperOptions | None = None):
+        if on_failure not in POLICIES:
+            raise ValueError(f"on_failure must be one of {POLICIES}, got {on_failure!r}")
+        self.world = world
+        self.on_failure = on_failure
+        self.options = options or StepperOptions()
+        adapter.check_free_joint_convention()
+        h = world.getTimeStep()
+        if not (math.isfinite(h) and h > 0):
+            raise ValueError(f"the world's time step must be positive and finite, got {h}")
+        self.scene = adapter.scan_world(world)
+        self._objects = self._contact_objects()
+        self._broadphase = Broadphase(len(self._objects))
+        self._pair_friction = {}
+        self._last = {}            # pair key -> dict of the last solution (warm start)
+        self._layout_cache = {}
+        self._check_state_finite()
+        if self.options.check_penetration_at_start:
+            self._check_initial_overlap()
+
+    # -- public ----------------------------------------------------------------------------------
+    def set_pair_friction(self, node_a, node_b, friction: Friction) -> None:
+        """Override the friction of the pair (node_a, node_b) (default: the smaller mu)."""
+        if not isinstance(friction, Friction):
+            raise ValueError(f"friction must be an ic.Friction, got {type(friction).__name__}")
+        ia, ib = self._body_of(node_a), self._body_of(node_b)
+        self._pair_friction[frozenset((ia, ib))] = friction
+
+    def step(self) -> StepReport:
+        """Advance the world by world.getTimeStep(); transactional (see on_failure)."""
+        h = self.world.getTimeStep()
+        if not (math.isfinite(h) and h > 0):
+            raise ValueError(f"the world's time step must be positive and finite, got {h}")
+        self._check_state_finite()
+        snap = adapter.snapshot(self.world)
+        last_before = dict(self._last)
+        report = self._substeps(h, 1)
+        if report.success:
+            adapter.finish_step(self.world, h)
+            return report
+        adapter.restore(self.world, snap)
+        self._last = last_before
+        if self.on_failure == "retry":
+            for k in range(1, self.options.max_halvings + 1):
+                n = 2 ** k
+                report = self._substeps(h / n, n)
+                if report.success:
+                    adapter.finish_step(self.world, h)
+                    return report
+                adapter.restore(self.world, snap)
+                self._last = last_before
+            raise StepFailure(report.message + f" Retried with up to {2 ** self.options.max_halvings} "
+                              "substeps; the world is unchanged.", report)
+        if self.on_failure == "warn":
+            warnings.warn(report.message + " The world is unchanged.", RuntimeWarning, stacklevel=2)
+            return report
+        raise StepFailure(report.message + " The world is unchanged.", report)
+
+    # -- construction helpers ------------------------------------------------------------------
+    def _body_of(self, node) -> int:
+        for b in self.scene.bodies:
+            if b.body_node is node or (b.body_node.getName() == node.getName()
+                                       and b.skeleton.getName() == node.getSkeleton().getName()):
+                return b.index
+        raise ValueError(f"body '{node.getName()}' carries no contact shape in this world")
+
+    def _contact_objects(self):
+        objs = []
+        for body in self.scene.bodies:
+            for cs in body.shapes:
+                pieces = cs.shape.parts if isinstance(cs.shape, shp.Union) else (cs.shape,)
+                for piece in pieces:
+                    funcs = tuple(piece.functions)
+                    fixed_hs = (body.kind == adapter.FIXED and len(funcs) == 1
+                                and isinstance(funcs[0], (shp.HalfSpace, shp.HalfPlane)))
+                    objs.append(_Object(body.index, piece, funcs, fixed_hs, cs.friction,
+                                        f"{body.name}:{cs.label}"))
+        return objs
+
+    def _check_state_finite(self):
+        for s in self.scene.skeletons:
+            q, v = np.asarray(s.skeleton.getPositions()), np.asarray(s.skeleton.getVelocities())
+            if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+                raise ValueError(f"skeleton '{s.skeleton.getName()}' has non-finite positions or "
+                                 "velocities; the stepper refuses to step it.")
+
+    def _check_initial_overlap(self):
+        from .closest import closest_points
+        tol = self.options.contact_tolerance
+        poses = {b.index: adapter.body_pose(b) for b in self.scene.bodies}
+        for i, j in self._pairs_at(poses, margins=np.full(len(self._objects), tol)):
+            o1, o2 = self._objects[i], self._objects[j]
+            if o1.fixed_halfspace and o2.fixed_halfspace:
+                continue
+            res = closest_points(o1.piece, _pose_dim(poses[o1.body], o1.piece.dim),
+                                 o2.piece, _pose_dim(poses[o2.body], o2.piece.dim))
+            if res.overlapping and res.depth > tol:
+                raise ValueError(f"bodies {o1.label} and {o2.label} interpenetrate by about "
+                                 f"{res.depth:.3g} at the start (tolerance {tol:g}); move them apart.")
+
+    # -- one step --------------------------------------------------------------------------------
+    def _substeps(self, h, n) -> StepReport:
+        total_it, worst = 0, 0.0
+        report = None
+        for _ in range(n):
+            report = self._one_step(h)
+            total_it += report.iterations
+            worst = max(worst, report.residual)
+            if not report.success:
+                return report
+        return StepReport(True, total_it, worst, report.status, report.contacts, self.world.getTime() + h * n,
+                          n, report.message, report.unknowns)
+
+    def _pairs_at(self, poses, margins, extra_poses=None):
+        lo = np.empty((len(self._objects), 3))
+        hi = np.empty((len(self._objects), 3))
+        for k, o in enumerate(self._objects):
+            l_, h_ = _aabb3(o.piece, poses[o.body])
+            if extra_poses is not None and o.body in extra_poses:
+                l2, h2 = _aabb3(o.piece, extra_poses[o.body])
+                l_, h_ = np.minimum(l_, l2), np.maximum(h_, h2)
+            lo[k], hi[k] = l_, h_
+        out = []
+        for i, j in self._broadphase.candidates(lo, hi, margins):
+            oi, oj = self._objects[i], self._objects[j]
+            if oi.body == oj.body:
+                continue
+            if self.scene.bodies[oi.body].kind == adapter.FIXED and self.scene.bodies[oj.body].kind == adapter.FIXED:
+                continue
+            out.append((i, j))
+        return out
+
+    def _one_step(self, h) -> StepReport:
+        scene = self.scene
+        t0 = self.world.getTime()
+        states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None)
+                  for s in scene.skeletons]
+        v_free = [st.v + h * np.linalg.solve(st.M, st.force) for st in states]
+        poses_now = {b.index: adapter.body_pose(b) for b in scene.bodies}
+        poses_pred = {}
+        for s, rec in enumerate(scene.skeletons):
+            if rec.body_index >= 0:
+                poses_pred[rec.body_index] = _predict_pose(rec.kind, states[s], v_free[s], h)
+        tol = self.options.contact_tolerance
+        margins = np.full(len(self._objects), 10.0 * tol)
+        for k, o in enumerate(self._objects):
+            rec = scene.bodies[o.body]
+            if rec.skeleton_index >= 0:
+                v = v_free[rec.skeleton_index]
+                lin = np.linalg.norm(v[:2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[3:6])
+                ang = abs(v[2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[:3])
+                # the MCP's v+ differs from free flight: allow half a free step more of motion
+                margins[k] += 0.5 * h * (lin + ang * o.piece.length_scale)
+        pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
+        if not pairs:
+            for s, rec in enumerate(scene.skeletons):
+                adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h)
+            self._last = {}
+            return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
+        # skeletons that take part in the MCP
+        involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p} - {-1})
+        sk_pos = {s: k for k, s in enumerate(involved)}
+        body_ids = sorted({self._objects[i].body for p in pairs for i in p})
+        body_pos = {b: k for k, b in enumerate(body_ids)}
+        specs = []
+        for i, j in pairs:
+            specs.append(self._pair_spec(i, j, h, body_pos, states))
+        nv = [scene.skeletons[s].ndof for s in involved]
+        # Friction rows only for pairs that touch: a pair without rows whose solution touches gets
+        # them and the step is solved again; a pair with rows whose gap opened (p_n = 0 leaves sigma
+        # undetermined, a singular Jacobian) loses them if the solve failed.
+        for _attempt in range(4):
+            problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
+            z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
+            result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper,
+                                   options=self.options.solver)
+            x = result.x
+            pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
+            if result.success:
+                change = [k for k, sp in enumerate(specs)
+                          if sp.friction.active and not sp.with_friction and pn[k] > _TOUCH]
+                on = True
+            else:
+                change = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= _TOUCH]
+                on = False
+            if not change:
+                break
+            for k in change:
+                specs[k].with_friction = on
+        layout = problem.layout
+        if not result.success:
+            return self._failure(problem, result, specs, t0, h)
+        z = result.x
+        contacts = []
+        new_last = {}
+        for k, spec in enumerate(specs):
+            st = problem.unpack_pair(z, k)
+            contacts.append(self._contact_report(problem, z, k, spec, st))
+            new_last[spec.key] = {"a1": st.a1, "a2": st.a2, "l1": st.l1, "l2": st.l2, "p_n": st.p_n,
+                                  "p_t": st.p_t, "p_r": st.p_r, "sigma": st.sigma, "k1": spec.k1,
+                                  "axis": spec.tangent_axis}
+        bad = self._check_solution(contacts, specs)
+        if bad:
+            return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
+                              t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", layout.n)
+        for s, rec in enumerate(scene.skeletons):
+            v_next = z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s]
+            adapter.write_velocities_and_integrate(rec, v_next, states[s].v, h)
+        self._last = new_last
+        return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
+                          t0 + h, 1, result.message, layout.n)
+
+    # -- pieces of a step ------------------------------------------------------------------------
+    def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos):
+        scene = self.scene
+        layout = fm.build_layout(nv, specs)
+        kins = []
+        for b in body_ids:
+            rec = scene.bodies[b]
+            if rec.kind == adapter.FIXED:
+                R, p = poses_now[b]
+                kins.append(fm.BodyKinematics(fm.FIXED, rec.dim, R, p, None, h, None))
+            else:
+                s = rec.skeleton_index
+                st = states[s]
+                q0 = st.q.copy() if rec.kind == adapter.PLANAR else None
+                kins.append(fm.BodyKinematics(rec.kind, rec.dim, st.R, st.p, q0, h,
+                                              layout.v_index[sk_pos[s]], rec.body_node.getMass()))
+        blocks = [fm.SkeletonBlock(states[s].M, states[s].v, states[s].force,
+                                   body_pos[scene.skeletons[s].body_index]) for s in involved]
+        return fm.StepProblem(h, blocks, kins, specs, layout)
+
+    def _pair_spec(self, i, j, h, body_pos, states):
+        scene = self.scene
+        oi, oj = self._objects[i], self._objects[j]
+        # body 1 must be a single function when the other side is an intersection ([GI] Sec. 4.3);
+        # a fixed half-space (the ground) is body 2, as in the paper's Example 1.
+        single_i, single_j = len(oi.funcs) == 1, len(oj.funcs) == 1
+        if single_i != single_j:
+            first, second = (oi, oj) if single_i else (oj, oi)
+        elif single_i and oi.fixed_halfspace and not oj.fixed_halfspace:
+            first, second = oj, oi
+        else:
+            first, second = oi, oj
+        key = (first.key, second.key)
+        b1, b2 = scene.bodies[first.body], scene.bodies[second.body]
+        dim = max(b1.dim, b2.dim)
+        friction = self._pair_friction.get(frozenset((b1.index, b2.index)),
+                                           Friction.combine(first.friction, second.friction))
+        masses = [b.body_node.getMass() for b in (b1, b2) if b.kind != adapter.FIXED]
+        g = float(np.linalg.norm(self.world.getGravity()))
+        s_p = h * min(masses) * max(g, 1.0)
+        last = self._last.get(key)
+        # friction rows for pairs that touched at the last step; the others get them if they touch
+        with_friction = friction.active and last is not None and last["p_n"] > _TOUCH * s_p
+        axis = None
+        if dim == 3:
+            axis = last["axis"] if last is not None else None
+        k1 = last["k1"] if last is not None else 0
+        o1 = fm.ContactObject(body_pos[first.body], first.funcs, first.fixed_halfspace, first.label)
+        o2 = fm.ContactObject(body_pos[second.body], second.funcs, second.fixed_halfspace, second.label)
+        return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second))
+
+    def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h):
+        from .closest import closest_points
+        lay = problem.layout
+        z = np.zeros(lay.n)
+        touching_skeletons = set()
+        for spec in specs:
+            last = self._last.get(spec.key)
+            if last is not None and last["p_n"] > 0.0:
+                for o in spec.objects:
+                    s = self.scene.bodies[o.body].skeleton_index
+                    if s >= 0:
+                        touching_skeletons.add(s)
+        for k, s in enumerate(involved):
+            z[lay.v_index[k]] = states[s].v if s in touching_skeletons else v_free[s]
+        for k, spec in enumerate(specs):
+            sl = lay.pairs[k]
+            first, second = spec.objects
+            b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
+            d = spec.dim
+            last = self._last.get(spec.key)
+            shift = _contact_shift(b1, b2, states, h)[:d]
+            if last is not None:
+                a1, a2 = last["a1"] + shift, last["a2"] + shift
+                l1, l2 = last["l1"], last["l2"]
+                p_n, p_t, p_r, sigma = last["p_n"], last["p_t"], last["p_r"], last["sigma"]
+            else:
+                res = closest_points(first.piece, _pose_dim(poses_now[first.body], d),
+                                     second.piece, _pose_dim(poses_now[second.body], d))
+                a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+                normal = np.asarray(res.normal, float)
+                P1 = problem.bodies[spec.obj1.body].pose(problem.body_velocity(z, spec.obj1.body))
+                P2 = problem.bodies[spec.obj2.body].pose(problem.body_velocity(z, spec.obj2.body))
+                l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
+                spec.k1 = k1
+                p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
+            if spec.tangent_axis is None and d == 3:
+                n0 = (a2 - a1) if np.linalg.norm(a2 - a1) > 1e-12 else np.array([0.0, 0.0, 1.0])
+                spec.tangent_axis = fm._least_aligned_axis(n0 / np.linalg.norm(n0))
+            problem.pack_points(z, k, a1, a2)
+            z[sl.l1] = l1
+            z[sl.l2] = l2
+            z[sl.p_n] = p_n / spec.impulse_scale
+            if spec.with_friction:
+                z[sl.p_t] = p_t / spec.impulse_scale
+                if sl.p_r >= 0:
+                    z[sl.p_r] = p_r / (spec.impulse_scale * spec.friction.e_r)
+                z[sl.sigma] = sigma
+        return z
+
+    def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
+        first, second = spec.objects
+        b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
+        d = spec.dim
+        p_t = st.p_t
+        pt = float(p_t[0]) if len(p_t) else 0.0
+        po = float(p_t[1]) if len(p_t) > 1 else 0.0
+        vrel = _relative_velocity_at(problem, z, k)
+        slip = float(np.linalg.norm(st.tangents @ vrel))
+        return ContactReport(b1.body_node, b2.body_node, st.a1, st.a2, st.normal, st.gap, st.p_n, pt, po,
+                             st.p_r, st.sigma, slip, b1.name, b2.name)
+
+    def _check_solution(self, contacts, specs) -> str:
+        tol = self.options.contact_tolerance
+        for c, spec in zip(contacts, specs):
+            if not np.isfinite(c.p_n) or c.gap < -tol:
+                return f"pair {c.name_a} / {c.name_b} penetrates by {-c.gap:.3g} (tolerance {tol:g})"
+            if spec.with_friction:
+                mu = spec.friction.mu
+                ft = math.hypot(c.p_t / spec.friction.e_t, c.p_o / spec.friction.e_o)
+                bound = mu * c.p_n + 1e3 * self.options.solver.tol * spec.impulse_scale
+                if ft > bound * (1 + 1e-8):
+                    return (f"pair {c.name_a} / {c.name_b} friction {ft:.3g} outside the cone "
+                            f"mu p_n = {mu * c.p_n:.3g}")
+        return ""
+
+    def _failure(self, problem, result, specs, t0, h) -> StepReport:
+        worst = int(np.argmax(np.abs(result.x - np.clip(result.x - problem.fun(result.x), problem.lower,
+                                                         problem.upper)))) if np.all(np.isfinite(result.x)) else 0
+        pair_name = "velocities"
+        for k, sl in enumerate(problem.layout.pairs):
+            cols = np.concatenate([sl.a1, sl.a2, sl.l1, sl.l2, [sl.p_n], sl.rows_fric])
+            if worst in cols:
+                pair_name = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}"
+        msg = (f"NCP failed at t = {t0:.6g} s ({pair_name}, {result.status.name}, residual "
+               f"{result.residual:.3g} after {result.iterations} iterations). Likely: the time step "
+               f"h = {h:g} is too large for the curvature or speed here; try h/2 or on_failure='retry'.")
+        return StepReport(False, result.iterations, result.residual, result.status.name, (), t0, 1, msg,
+                          problem.layout.n)
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class _Object:
+    body: int
+    piece: object
+    funcs: tuple
+    fixed_halfspace: bool
+    friction: Friction
+    label: str
+
+    @property
+    def key(self):
+        return self.label
+
+
+def _pose_dim(pose, dim):
+    R, p = pose
+    return (R[:dim, :dim], p[:dim])
+
+
+def _aabb3(piece, pose):
+    R, p = pose
+    d = piece.dim
+    lo, hi = piece.aabb(R[:d, :d], p[:d])
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    if d == 2:
+        lo, hi = np.append(lo, 0.0), np.append(hi, 0.0)
+    return lo, hi
+
+
+def _predict_pose(kind, st, v, h):
+    if kind == adapter.FREE:
+        return fm.so3_exp(h * v[:3]) @ st.R, st.p + h * v[3:6]
+    th = st.q[2] + h * v[2]
+    c, s = math.cos(th), math.sin(th)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R, np.array([st.q[0] + h * v[0], st.q[1] + h * v[1], 0.0])
+
+
+def _multipliers(spec, P1, P2, a1, a2, normal):
+    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points.
+
+    hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
+    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1; touching points use the normal instead of a1 - a2."""
+    _, G1, *_ = fm._eval_functions(spec.obj1.functions, P1, a1)
+    _, G2, *_ = fm._eval_functions(spec.obj2.functions, P2, a2)
+    d = a2 - a1
+    m1 = len(G1)
+    if np.linalg.norm(d) > 1e-12:
+        lam, _ = nnls(G1.T, d)
+        k1 = int(np.argmax(lam)) if m1 > 1 else 0
+        lk = lam[k1]
+        l1 = lam / lk if lk > 0 else np.zeros(m1)
+        l1[k1] = lk
+    else:
+        lam, _ = nnls(G1.T, normal)
+        k1 = int(np.argmax(lam)) if m1 > 1 else 0
+        l1 = lam / lam[k1] if lam[k1] > 0 else np.zeros(m1)
+        l1[k1] = 0.0
+    c = l1.copy()
+    c[k1] = 1.0
+    N1 = c @ G1
+    l2, _ = nnls(G2.T, -N1)
+    if spec.obj1.fixed_halfspace:
+        l1 = np.array([float(np.linalg.norm(d))])
+    if spec.obj2.fixed_halfspace:
+        l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
+    return l1, l2, k1
+
+
+def _relative_velocity_at(problem, z, k):
+    spec, sl = problem.specs[k], problem.layout.pairs[k]
+    a1, T1, a2, T2 = problem.points(z, k)
+    P1 = problem.bodies[spec.obj1.body].pose(problem.body_velocity(z, spec.obj1.body))
+    P2 = problem.bodies[spec.obj2.body].pose(problem.body_velocity(z, spec.obj2.body))
+    vrel, _ = problem._relative_velocity(z, P1, P2, problem.bodies[spec.obj1.body].vindex,
+                                         problem.bodies[spec.obj2.body].vindex, a1, a2, T1, T2, sl)
+    return vrel
+
+
+def _contact_shift(b1, b2, states, h):
+    """Warm start: a contact point travels with its bodies' translation (exact for rolling)."""
+    vel = []
+    for b in (b1, b2):
+        if b.kind == adapter.FIXED:
+            continue
+        v = states[b.skeleton_index].v
+        vel.append(np.array([v[0], v[1], 0.0]) if b.kind == adapter.PLANAR else v[3:6])
+    if not vel:
+        return np.zeros(3)
+    return h * np.mean(vel, axis=0)
