@@ -148,15 +148,10 @@ def _placed_rectangle(half, c, angle):
 
 
 def _compose_placement(d: dict, R, c) -> dict:
-    """Compose a shape dict's own placement with a body placement (R, c)."""
+    """Compose a 3D shape dict's own placement (R0, c0) with a body placement (R, c)."""
     d = dict(d)
-    if d["type"] in ("HalfSpace", "HalfPlane"):
-        n = R @ np.asarray(d["normal"], float)
-        d["normal"] = n.tolist()
-        d["offset"] = float(d["offset"]) + float(n @ c)
-        return d
-    R0 = np.asarray(d.get("rotation") if d.get("rotation") is not None else np.eye(3), float)
-    c0 = np.asarray(d.get("center") if d.get("center") is not None else np.zeros(3), float)
+    R0 = np.asarray(d["rotation"] if d.get("rotation") is not None else np.eye(3), float)
+    c0 = np.asarray(d["center"] if d.get("center") is not None else np.zeros(3), float)
     d["rotation"] = (R @ R0).tolist()
     d["center"] = (R @ c0 + c).tolist()
     return d
@@ -219,7 +214,10 @@ def _joint_kind(skel) -> str:
                              "offsets; the implicit stepper needs identity offsets on a FreeJoint.")
         return FREE
     if jtype == "PlanarJoint":
-        if not offsets_identity or str(joint.getPlaneType()).split(".")[-1] != "XY":
+        xy = (np.allclose(joint.getRotationalAxis(), [0.0, 0.0, 1.0])
+              and np.allclose(joint.getTranslationalAxis1(), [1.0, 0.0, 0.0])
+              and np.allclose(joint.getTranslationalAxis2(), [0.0, 1.0, 0.0]))
+        if not offsets_identity or not xy:
             raise ValueError(f"the PlanarJoint of '{skel.getName()}' must be in the XY plane "
                              "(joint.setXYPlane()) with identity offsets; set gravity along -y.")
         return PLANAR

@@ -186,9 +186,9 @@ def _eval_functions(funcs, pose: Pose, a):
     G = np.empty((m, d))
     Hw = np.empty((m, d, d))
     for i, fn in enumerate(funcs):
-        f[i] = fn.value(xi)
-        G[i] = R @ fn.gradient(xi)
-        Hw[i] = R @ fn.hessian(xi) @ R.T
+        f[i], g, H = fn.value_gradient_hessian(xi)
+        G[i] = R @ g
+        Hw[i] = R @ H @ R.T
     if k == 0:
         return f, G, Hw, np.zeros((m, 0)), np.zeros((m, d, 0))
     Xr = _X(r)
@@ -257,12 +257,13 @@ class Layout:
     upper: np.ndarray
 
 
-def _reduced_point(obj: ContactObject, dim: int):
-    """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents)."""
-    fn = obj.functions[0]
-    n = np.asarray(fn.normal, float)[:dim]
-    n = n / np.linalg.norm(n)
-    a0 = float(fn.offset) * n
+def _reduced_point(obj: ContactObject, kin: "BodyKinematics"):
+    """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents), world frame."""
+    dim = kin.dim
+    n_b, offset = obj.functions[0].plane()            # body frame
+    R, p = kin.R0[:dim, :dim], kin.p0[:dim]
+    n = R @ np.asarray(n_b, float)
+    a0 = (float(offset) + float(n @ p)) * n
     if dim == 2:
         T = np.array([[-n[1]], [n[0]]])
     else:
@@ -386,8 +387,8 @@ class StepProblem:
         self._row_scale = [1.0 / np.maximum(np.diag(sk.M), 1e-300) for sk in skeletons]
         self._reduced = []
         for spec in specs:
-            r1 = _reduced_point(spec.obj1, spec.dim) if spec.obj1.fixed_halfspace else None
-            r2 = _reduced_point(spec.obj2, spec.dim) if spec.obj2.fixed_halfspace else None
+            r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
+            r2 = _reduced_point(spec.obj2, bodies[spec.obj2.body]) if spec.obj2.fixed_halfspace else None
             self._reduced.append((r1, r2))
         self._cache_x = None
         self._cache = None

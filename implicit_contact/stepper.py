@@ -46,7 +46,7 @@ class StepperOptions:
     check_penetration_at_start: refuse worlds whose bodies overlap when the stepper is built.
     """
     contact_tolerance: float = 1e-6
-    solver: ncp.SolverOptions = field(default_factory=lambda: ncp.SolverOptions(tol=1e-10, max_iterations=50))
+    solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
     max_halvings: int = 4
     check_penetration_at_start: bool = True
 
@@ -102,6 +102,12 @@ class StepFailure(RuntimeError):
 
 
 POLICIES = ("raise", "warn", "retry")
+
+# The step's rows mix velocities, lengths and dimensionless gradients, and a position row moves
+# only by h times a velocity change: near the solution a Newton step of O(1) (in scaled impulse
+# units) can fix a residual of O(h^2). The solver's default descent test (rho = 1e-8) rejects such
+# steps as "too long for the residual"; rho = 1e-24 still caps steps at ~1e6 for a 1e-5 residual.
+DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
 _TOUCH = 1e-9   # scaled normal impulse (units of h m g) above which a pair counts as touching
 
 
@@ -193,8 +199,10 @@ class ImplicitContactStepper:
                     funcs = tuple(piece.functions)
                     fixed_hs = (body.kind == adapter.FIXED and len(funcs) == 1
                                 and isinstance(funcs[0], (shp.HalfSpace, shp.HalfPlane)))
+                    label = cs.label if not cs.label.startswith(adapter.SHAPE_NODE_PREFIX) \
+                        else type(cs.shape).__name__
                     objs.append(_Object(body.index, piece, funcs, fixed_hs, cs.friction,
-                                        f"{body.name}:{cs.label}"))
+                                        f"{body.name}:{label}#{len(objs)}"))
         return objs
 
     def _check_state_finite(self):
@@ -289,24 +297,34 @@ class ImplicitContactStepper:
         # Friction rows only for pairs that touch: a pair without rows whose solution touches gets
         # them and the step is solved again; a pair with rows whose gap opened (p_n = 0 leaves sigma
         # undetermined, a singular Jacobian) loses them if the solve failed.
-        for _attempt in range(4):
+        previous = None            # (problem, x) to warm start a re-solve from
+        sliding = []
+        for _attempt in range(5):
             problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
-            z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
+            if previous is None:
+                z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
+            else:
+                z0 = _transfer(*previous, problem, sliding)
             result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper,
                                    options=self.options.solver)
             x = result.x
             pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
-            if result.success:
-                change = [k for k, sp in enumerate(specs)
-                          if sp.friction.active and not sp.with_friction and pn[k] > _TOUCH]
-                on = True
-            else:
-                change = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= _TOUCH]
-                on = False
-            if not change:
+            # rows on for every pair that touches, off for every pair whose gap is open
+            off = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= _TOUCH]
+            on = [k for k, sp in enumerate(specs)
+                  if sp.friction.active and not sp.with_friction and pn[k] > _TOUCH] if result.success else []
+            if on or off:
+                previous = (problem, result.x if result.success else z0)
+                sliding = []
+                for k in on + off:
+                    specs[k].with_friction = k in on
+                continue
+            if result.success or previous is None or sliding:
                 break
-            for k in change:
-                specs[k].with_friction = on
+            # a failed solve from a frictionless solution: restart the stuck contacts sliding
+            sliding = _stuck_sliding(problem, x)
+            if not sliding:
+                break
         layout = problem.layout
         if not result.success:
             return self._failure(problem, result, specs, t0, h)
@@ -564,3 +582,46 @@ def _contact_shift(b1, b2, states, h):
     if not vel:
         return np.zeros(3)
     return h * np.mean(vel, axis=0)
+
+
+def _transfer(old, x, new, sliding=()) -> np.ndarray:
+    """Warm start of a re-solve whose pairs gained or lost friction rows: copy what both layouts
+    share. New friction rows start at zero impulse and zero slip multiplier, except for the pairs
+    in ``sliding``, which start at the sliding solution that the old solution's slip implies
+    (p_f = -mu p_n E^2 v_t / sigma, sigma = |E v_t|). Measured on Example 2: from the wrong one of
+    the two starts the FB merit crawls along a non-solution valley (a sliding contact held at
+    sigma = 0 with its friction outside the cone), from the right one Newton converges at once."""
+    z = np.zeros(new.layout.n)
+    for a, b in zip(old.layout.v_index, new.layout.v_index):
+        z[b] = x[a]
+    for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
+        for name in ("a1", "a2", "l1", "l2"):
+            z[getattr(sn, name)] = x[getattr(so, name)]
+        z[sn.p_n] = x[so.p_n]
+        if sn.sigma < 0:
+            continue
+        if so.sigma >= 0 and k not in sliding:   # both layouts have this pair's friction rows
+            z[sn.rows_fric] = x[so.rows_fric]
+            continue
+        if k not in sliding:
+            continue
+        spec = new.specs[k]
+        st = old.unpack_pair(x, k)
+        vt = st.tangents @ _relative_velocity_at(old, x, k)
+        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
+        sigma = float(np.sqrt(np.sum((e * vt) ** 2)))
+        if sigma > 0.0:
+            z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
+        z[sn.sigma] = sigma
+    return z
+
+
+def _stuck_sliding(problem, x) -> list:
+    """Pairs held at sigma ~ 0 with their friction outside the cone: the FB valley of a contact
+    that must slide (see _transfer)."""
+    F = problem.fun(x)
+    out = []
+    for k, sl in enumerate(problem.layout.pairs):
+        if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
+            out.append(k)
+    return out
