@@ -52,8 +52,9 @@ with s in R^{d-1}, and its multiplier pair 0 <= l2 _|_ -g(a2) becomes trivial, s
 box) fixes a1 the same way and frees l1.
 
 Scaling. Impulses are unknowns in units of s_p = h m g_ref (a pair's weight impulse), the
-Newton-Euler rows are divided by diag(M) (so they read as velocities), and the friction rows by
-s_p: a natural-residual tolerance then means about the same on every row.
+Newton-Euler rows are divided by diag(M) and the position-level rows ((15), (17)-(19)) by h, so
+that they read as velocities; the friction rows are in velocity units by construction (scaled
+impulses times velocities): a natural-residual tolerance then means about the same on every row.
 
 Dynamics rows of a skeleton ([GI] eq 21, first line, with DART's M, bias and applied forces at l):
 
@@ -175,15 +176,20 @@ _A_W_PLANAR = np.array([[0.0, 0.0, 1.0]])
 _A_V_PLANAR = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
-def _eval_functions(funcs, pose: Pose, a):
+def _eval_functions(funcs, pose: Pose, a, jac=True):
     """Values, world gradients, world Hessians, and their v-derivatives of body functions at a.
 
-    Returns f (m,), G (m,d), Hw (m,d,d), dfdv (m,k), dGdv (m,d,k)."""
+    Returns f (m,), G (m,d), Hw (m,d,d), dfdv (m,k), dGdv (m,d,k); without jac only f and G."""
     R, r = pose.R, a - pose.p
     xi = R.T @ r
     m, d, k = len(funcs), len(a), pose.B_th.shape[1]
     f = np.empty(m)
     G = np.empty((m, d))
+    if not jac:
+        for i, fn in enumerate(funcs):
+            f[i] = fn.value(xi)
+            G[i] = R @ fn.gradient(xi)
+        return f, G, None, None, None
     Hw = np.empty((m, d, d))
     for i, fn in enumerate(funcs):
         f[i], g, H = fn.value_gradient_hessian(xi)
@@ -245,6 +251,14 @@ class PairSlots:
     rows_l2: np.ndarray
     row_n: int
     rows_fric: np.ndarray      # (d-1) + torsion rows, then sigma row = sigma
+
+    def __post_init__(self):
+        # the same blocks as slices (every block is contiguous), for fast reads and writes
+        self.a1s, self.a2s = _as_slice(self.a1), _as_slice(self.a2)
+        self.l1s, self.l2s, self.p_ts = _as_slice(self.l1), _as_slice(self.l2), _as_slice(self.p_t)
+        self.rows_l1s, self.rows_l2s = _as_slice(self.rows_l1), _as_slice(self.rows_l2)
+        self.l1_bounded = np.arange(len(self.rows_l1))   # which functions have complementarity rows
+        self.l2_bounded = np.arange(len(self.rows_l2))
 
 
 @dataclass
@@ -375,7 +389,10 @@ class PairState:
 
 
 class StepProblem:
-    """F(z) and dF/dz of one geometrically implicit step, for ``ncp.solve_mcp``."""
+    """F(z) and dF/dz of one geometrically implicit step, for ``ncp.solve_mcp``.
+
+    ``fun`` evaluates the rows only (line-search trials need no Jacobian); ``jac`` evaluates both
+    and caches them for the last z. Every contiguous block is written through slices."""
 
     def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout):
         self.h = h
@@ -384,19 +401,33 @@ class StepProblem:
         self.specs = specs
         self.layout = layout
         self.lower, self.upper = layout.lower, layout.upper
-        self._row_scale = [1.0 / np.maximum(np.diag(sk.M), 1e-300) for sk in skeletons]
+        # Row scaling (see the module docstring): Newton-Euler rows / diag(M) and position-level
+        # rows / h, so that every row but the unit-free normal rows (16) and cone rows reads as a
+        # velocity and one tolerance means the same on all of them.
+        scale = np.ones(layout.n)
+        for s, sk in enumerate(skeletons):
+            scale[_as_slice(layout.v_index[s])] = 1.0 / np.maximum(np.diag(sk.M), 1e-300)
+        for spec, sl in zip(specs, layout.pairs):
+            scale[sl.rows_geo[: spec.dim]] = 1.0 / h
+            scale[sl.rows_l1] = 1.0 / h
+            scale[sl.rows_l2] = 1.0 / h
+            scale[sl.row_n] = 1.0 / h
+        self._row_scale = scale
+        self._body_skel = {sk.body: s for s, sk in enumerate(skeletons)}
+        self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
         self._reduced = []
         for spec in specs:
             r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
             r2 = _reduced_point(spec.obj2, bodies[spec.obj2.body]) if spec.obj2.fixed_halfspace else None
             self._reduced.append((r1, r2))
-        self._cache_x = None
-        self._cache = None
+        self._key_f = self._key_j = None
+        self._F = self._J = None
+        self._pairs_at = None      # per-pair quantities at _key_f, for reports
 
     # -- unknown vector helpers ---------------------------------------------------------------
     def body_velocity(self, z, body_index):
-        kin = self.bodies[body_index]
-        return z[kin.vindex] if kin.vindex is not None else np.zeros(0)
+        sl = self._vslice[body_index]
+        return z[sl] if sl is not None else _EMPTY
 
     def points(self, z, k):
         """World closest points a1, a2 of pair k and their Jacobians wrt their unknowns."""
@@ -404,295 +435,283 @@ class StepProblem:
         r1, r2 = self._reduced[k]
         d = self.specs[k].dim
         if r1 is None:
-            a1, T1 = z[sl.a1], np.eye(d)
+            a1, T1 = z[sl.a1s], _EYE[d]
         else:
-            a1, T1 = r1[0] + r1[1] @ z[sl.a1], r1[1]
+            a1, T1 = r1[0] + r1[1] @ z[sl.a1s], r1[1]
         if r2 is None:
-            a2, T2 = z[sl.a2], np.eye(d)
+            a2, T2 = z[sl.a2s], _EYE[d]
         else:
-            a2, T2 = r2[0] + r2[1] @ z[sl.a2], r2[1]
+            a2, T2 = r2[0] + r2[1] @ z[sl.a2s], r2[1]
         return a1, T1, a2, T2
 
     def pack_points(self, z, k, a1, a2):
         sl = self.layout.pairs[k]
         r1, r2 = self._reduced[k]
-        z[sl.a1] = a1 if r1 is None else r1[1].T @ (a1 - r1[0])
-        z[sl.a2] = a2 if r2 is None else r2[1].T @ (a2 - r2[0])
+        z[sl.a1s] = a1 if r1 is None else r1[1].T @ (a1 - r1[0])
+        z[sl.a2s] = a2 if r2 is None else r2[1].T @ (a2 - r2[0])
 
     # -- evaluation -----------------------------------------------------------------------------
     def fun(self, z):
-        return self._evaluate(z)[0]
+        if self._key_f is None or not np.array_equal(z, self._key_f):
+            self._F, _, self._pairs_at = self._assemble(z, False)
+            self._key_f = z.copy()
+        return self._F
 
     def jac(self, z):
-        return self._evaluate(z)[1]
+        if self._key_j is None or not np.array_equal(z, self._key_j):
+            F, J, pairs = self._assemble(z, True)
+            self._key_j = z.copy()
+            self._J = J
+            self._F, self._key_f, self._pairs_at = F, self._key_j, pairs
+        return self._J
 
-    def _evaluate(self, z):
-        if self._cache_x is not None and np.array_equal(z, self._cache_x):
-            return self._cache
-        F, J = self._assemble(z)
-        self._cache_x = z.copy()
-        self._cache = (F, J)
-        return F, J
-
-    def _assemble(self, z):
+    def _assemble(self, z, need_jac):
         lay = self.layout
         n = lay.n
         F = np.zeros(n)
-        J = np.zeros((n, n))
+        J = np.zeros((n, n)) if need_jac else None
         poses = [kin.pose(self.body_velocity(z, b)) for b, kin in enumerate(self.bodies)]
-        # Newton-Euler rows, before contact impulses: M (v+ - v) - h force
-        gen = []  # per skeleton: accumulated generalized contact impulse, and its Jacobian rows
         for s, sk in enumerate(self.skeletons):
-            idx = lay.v_index[s]
-            F[idx] = sk.M @ (z[idx] - sk.v) - self.h * sk.force
-            J[np.ix_(idx, idx)] = sk.M
-        body_to_skel = {sk.body: s for s, sk in enumerate(self.skeletons)}
-        for k, spec in enumerate(self.specs):
-            self._pair(z, k, spec, poses, body_to_skel, F, J)
-        for s in range(len(self.skeletons)):
-            idx = lay.v_index[s]
-            F[idx] *= self._row_scale[s]
-            J[idx, :] *= self._row_scale[s][:, None]
-        return F, J
+            vs = _as_slice(lay.v_index[s])
+            F[vs] = sk.M @ (z[vs] - sk.v) - self.h * sk.force
+            if need_jac:
+                J[vs, vs] = sk.M
+        pairs = [self._pair(z, k, spec, poses, F, J) for k, spec in enumerate(self.specs)]
+        F *= self._row_scale
+        if need_jac:
+            J *= self._row_scale[:, None]
+        return F, J, pairs
 
-    def _pair(self, z, k, spec, poses, body_to_skel, F, J):
+    def _pair(self, z, k, spec, poses, F, J):
+        """Rows of pair k into F (and J if given); returns the pair's state for reports."""
         sl = self.layout.pairs[k]
         d = spec.dim
         b1, b2 = spec.obj1.body, spec.obj2.body
         P1, P2 = poses[b1], poses[b2]
-        v1i = self.bodies[b1].vindex
-        v2i = self.bodies[b2].vindex
+        v1s, v2s = self._vslice[b1], self._vslice[b2]
         a1, T1, a2, T2 = self.points(z, k)
-        f1 = spec.obj1.functions
-        g2 = spec.obj2.functions
-        m1 = len(f1)
-        # body-1 functions at a1 and at a2, body-2 functions at a2
-        fa1, Ga1, Ha1, dfa1, dGa1 = _eval_functions(f1, P1, a1)
-        fa2, Ga2, _, dfa2, _ = _eval_functions(f1, P1, a2)
-        gb2, Gb2, Hb2, dgb2, dGb2 = _eval_functions(g2, P2, a2)
-        l1 = z[sl.l1]
-        l2 = z[sl.l2]
+        jac = J is not None
+        m1 = len(spec.obj1.functions)
+        fa1, Ga1, Ha1, dfa1, dGa1 = _eval_functions(spec.obj1.functions, P1, a1, jac)
+        fa2, Ga2, _, dfa2, _ = _eval_functions(spec.obj1.functions, P1, a2, jac)
+        gb2, Gb2, Hb2, dgb2, dGb2 = _eval_functions(spec.obj2.functions, P2, a2, jac)
+        l1, l2 = z[sl.l1s], z[sl.l2s]
         k1 = spec.k1
         c = l1.copy()
-        c[k1] = 1.0                     # N1 = sum_i c_i G_i with c_k1 = 1
+        c[k1] = 1.0                      # N1 = sum_i c_i G_i with c_k1 = 1
         N1 = c @ Ga1
-        dN1_da1 = np.tensordot(c, Ha1, axes=1)           # d x d
-        dN1_dv1 = np.tensordot(c, dGa1, axes=1)          # d x k1
-        rg = sl.rows_geo
-        r15, r16 = rg[:d], rg[d:]
         lk = l1[k1]
-        # (15)/(28): a1 - a2 + l_k1 N1
-        F[r15] = a1 - a2 + lk * N1
-        J[np.ix_(r15, sl.a1)] = (np.eye(d) + lk * dN1_da1) @ T1
-        J[np.ix_(r15, sl.a2)] = -T2
-        J[r15, sl.l1[k1]] = N1
-        for i in range(m1):
-            if i != k1:
-                J[r15, sl.l1[i]] = lk * Ga1[i]
-        if v1i is not None:
-            J[np.ix_(r15, v1i)] = lk * dN1_dv1
-        # (16)/(29): N1 + sum_j l_j G2_j
-        F[r16] = N1 + l2 @ Gb2
-        J[np.ix_(r16, sl.a1)] = dN1_da1 @ T1
-        J[np.ix_(r16, sl.a2)] = np.tensordot(l2, Hb2, axes=1) @ T2
-        for i in range(m1):
-            if i != k1:
-                J[r16, sl.l1[i]] = Ga1[i]
-        J[np.ix_(r16, sl.l2)] = Gb2.T
-        if v1i is not None:
-            J[np.ix_(r16, v1i)] = dN1_dv1
-        if v2i is not None:
-            J[np.ix_(r16, v2i)] = np.tensordot(l2, dGb2, axes=1)
-        # (17)/(30) and (18)/(31)
-        for i, row in enumerate(sl.rows_l1):
-            F[row] = -fa1[i]
-            J[row, sl.a1] = -Ga1[i] @ T1
-            if v1i is not None:
-                J[row, v1i] = -dfa1[i]
-        for j, row in enumerate(sl.rows_l2):
-            F[row] = -gb2[j]
-            J[row, sl.a2] = -Gb2[j] @ T2
-            if v2i is not None:
-                J[row, v2i] = -dgb2[j]
-        # (19)/(32): gap = max_i f_i(a2)
+        r15 = slice(sl.rows_geo[0], sl.rows_geo[0] + d)
+        r16 = slice(sl.rows_geo[0] + d, sl.rows_geo[0] + 2 * d)
+        F[r15] = a1 - a2 + lk * N1                                  # (15) / (28)
+        F[r16] = N1 + l2 @ Gb2                                      # (16) / (29)
+        F[sl.rows_l1s] = -fa1[sl.l1_bounded]                        # (17) / (30)
+        F[sl.rows_l2s] = -gb2[sl.l2_bounded]                        # (18) / (31)
         ia = int(np.argmax(fa2))
-        F[sl.row_n] = fa2[ia]
-        J[sl.row_n, sl.a2] = Ga2[ia] @ T2
-        if v1i is not None:
-            J[sl.row_n, v1i] = dfa2[ia]
-        # contact frame
+        F[sl.row_n] = fa2[ia]                                       # (19) / (32)
         nrm = math.sqrt(float(N1 @ N1))
         nhat = N1 / nrm
-        Pn = (np.eye(d) - np.outer(nhat, nhat)) / nrm        # dn = Pn dN1
-        # dN1 wrt every unknown it depends on: a1 (through T1), l1 (i != k1), v1
-        dN1 = {"a1": dN1_da1 @ T1, "v1": dN1_dv1}
-        tang, dtang = _tangents(nhat, Pn, spec.tangent_axis)
+        tang, dtang = _tangents(nhat, spec.tangent_axis, jac)
         s_p = spec.impulse_scale
-        p_n = z[sl.p_n]
         fr = spec.with_friction
-        p_t = z[sl.p_t] if fr else np.zeros(0)
-        p_r = z[sl.p_r] if sl.p_r >= 0 else 0.0
+        p_n = z[sl.p_n]
+        p_t = z[sl.p_ts] if fr else _EMPTY
+        torsion = sl.p_r >= 0
+        p_r = z[sl.p_r] if torsion else 0.0
         e_r = spec.friction.e_r
-        # impulse on body 2 (world), in physical units
-        Pvec = s_p * (p_n * nhat + (p_t @ tang if fr else 0.0))
-        tau = s_p * e_r * p_r * nhat if (d == 3 and sl.p_r >= 0) else None
-        # derivative of Pvec wrt nhat (through n and tangents)
-        dP_dn = s_p * p_n * np.eye(d)
+        Pvec = s_p * p_n * nhat
         if fr:
-            for a in range(d - 1):
-                dP_dn = dP_dn + s_p * p_t[a] * dtang[a]
-        dtau_dn = s_p * e_r * p_r * np.eye(d) if tau is not None else None
-        # distribute onto the two bodies: body 2 gets +P at a2, body 1 gets -P at a1
-        for side, (b, Pz, a, T, aidx) in enumerate(((b2, P2, a2, T2, sl.a2), (b1, P1, a1, T1, sl.a1))):
-            vi = self.bodies[b].vindex
-            if vi is None:
-                continue
-            s = body_to_skel[b]
-            sign = 1.0 if side == 0 else -1.0
-            r = a - Pz.p
-            XrT = _X(r).T                                  # moment arm: r (x) P = XrT P
-            M_fac = Pz.A_v.T + Pz.A_w.T @ XrT              # k x d: generalized impulse of a force
-            gen = sign * (M_fac @ Pvec)
-            if tau is not None:
-                gen = gen + sign * (Pz.A_w.T @ tau)
-            F[vi] -= gen
-            # d/d(force vector components)
-            dgen_dP = sign * M_fac
-            # unknown p_n, p_t, p_r
-            J[vi, sl.p_n] -= dgen_dP @ (s_p * nhat)
+            Pvec = Pvec + s_p * (p_t @ tang)
+        tau = s_p * e_r * p_r * nhat if torsion else None
+        if jac:
+            eye_d = _EYE[d]
+            dN1_da1 = Ha1[0] if m1 == 1 else np.einsum("i,ijk->jk", c, Ha1)
+            dN1_dv1 = (dGa1[0] if m1 == 1 else np.einsum("i,ijk->jk", c, dGa1)) if v1s is not None else None
+            others = [i for i in range(m1) if i != k1]
+            a1s, a2s = sl.a1s, sl.a2s
+            J[r15, a1s] = (eye_d + lk * dN1_da1) @ T1
+            J[r15, a2s] = -T2
+            J[r15, sl.l1[k1]] = N1
+            J[r16, a1s] = dN1_da1 @ T1
+            J[r16, a2s] = (np.einsum("j,jkl->kl", l2, Hb2) if len(l2) > 1 else l2[0] * Hb2[0]) @ T2
+            J[r16, sl.l2s] = Gb2.T
+            for i in others:
+                J[r15, sl.l1[i]] = lk * Ga1[i]
+                J[r16, sl.l1[i]] = Ga1[i]
+            if v1s is not None:
+                J[r15, v1s] = lk * dN1_dv1
+                J[r16, v1s] = dN1_dv1
+            if v2s is not None:
+                J[r16, v2s] = l2[0] * dGb2[0] if len(l2) == 1 else np.einsum("j,jkl->kl", l2, dGb2)
+            for i, row in zip(sl.l1_bounded, sl.rows_l1):
+                J[row, a1s] = -Ga1[i] @ T1
+                if v1s is not None:
+                    J[row, v1s] = -dfa1[i]
+            for j, row in zip(sl.l2_bounded, sl.rows_l2):
+                J[row, a2s] = -Gb2[j] @ T2
+                if v2s is not None:
+                    J[row, v2s] = -dgb2[j]
+            J[sl.row_n, a2s] = Ga2[ia] @ T2
+            if v1s is not None:
+                J[sl.row_n, v1s] = dfa2[ia]
+            # the normal's derivative: dn = Pn dN1, dN1 = dN1_da1 T1 da1 + dN1_dv1 dv1 + G_i dl_i
+            Pn = (eye_d - np.outer(nhat, nhat)) / nrm
+            dP_dn = s_p * p_n * eye_d
             if fr:
-                for a_ in range(d - 1):
-                    J[vi, sl.p_t[a_]] -= dgen_dP @ (s_p * tang[a_])
-            if tau is not None:
-                J[vi, sl.p_r] -= sign * (Pz.A_w.T @ (s_p * e_r * nhat))
-            # through the lever arm r = a - p(v)
-            dgen_dr = sign * (Pz.A_w.T @ (-_X(Pvec).T))    # k x d
-            J[np.ix_(vi, aidx)] -= dgen_dr @ T
-            J[np.ix_(vi, vi)] -= dgen_dr @ (-Pz.B_p)
-            # through the normal (and tangents): Pvec(n), tau(n)
-            dgen_dn = dgen_dP @ dP_dn
-            if tau is not None:
-                dgen_dn = dgen_dn + sign * (Pz.A_w.T @ dtau_dn)
-            G_ = dgen_dn @ Pn                               # k x d, times dN1
-            J[np.ix_(vi, sl.a1)] -= G_ @ dN1["a1"]
-            if v1i is not None:
-                J[np.ix_(vi, v1i)] -= G_ @ dN1["v1"]
-            for i in range(m1):
-                if i != k1:
-                    J[vi, sl.l1[i]] -= G_ @ Ga1[i]
-        if not fr:
-            return
-        # relative velocity of body 2's point a2 to body 1's point a1 at l+1
-        mu = spec.friction.mu
-        vrel, dvrel = self._relative_velocity(z, P1, P2, v1i, v2i, a1, a2, T1, T2, sl)
-        e = (spec.friction.e_t, spec.friction.e_o)
-        sigma = z[sl.sigma]
-        rows = sl.rows_fric
-        for a_ in range(d - 1):
-            row = rows[a_]
-            ea2 = e[a_] ** 2
-            vt = tang[a_] @ vrel
-            F[row] = ea2 * mu * p_n * vt + p_t[a_] * sigma
-            J[row, sl.p_n] += ea2 * mu * vt
-            J[row, sl.p_t[a_]] += sigma
-            J[row, sl.sigma] += p_t[a_]
-            # d vt = t . dvrel + vrel . dt, dt = dtang[a] Pn dN1
-            coef = ea2 * mu * p_n
-            for name, cols in dvrel.items():
-                J[np.ix_([row], cols[0])] += coef * (tang[a_] @ cols[1])[None, :]
-            dt_dN = vrel @ dtang[a_] @ Pn                  # (d,)
-            J[row, sl.a1] += coef * dt_dN @ dN1["a1"]
-            if v1i is not None:
-                J[row, v1i] += coef * dt_dN @ dN1["v1"]
-            for i in range(m1):
-                if i != k1:
-                    J[row, sl.l1[i]] += coef * dt_dN @ Ga1[i]
-        cone = (mu * p_n) ** 2 - (p_t[0] / e[0]) ** 2
-        if d == 3:
-            cone -= (p_t[1] / e[1]) ** 2
-        if sl.p_r >= 0:
-            # torsion: e_r mu p_n (n . w_rel) + p~_r sigma = 0
-            row = rows[d - 1]
-            w2 = P2.omega if v2i is not None else np.zeros(3)
-            w1 = P1.omega if v1i is not None else np.zeros(3)
-            wrel = w2 - w1
-            wn = nhat @ wrel
-            F[row] = e_r * mu * p_n * wn + p_r * sigma
-            J[row, sl.p_n] += e_r * mu * wn
-            J[row, sl.p_r] += sigma
-            J[row, sl.sigma] += p_r
-            coef = e_r * mu * p_n
-            if v2i is not None:
-                J[row, v2i] += coef * nhat @ P2.A_w
-            if v1i is not None:
-                J[row, v1i] -= coef * nhat @ P1.A_w
-            dwn_dN = wrel @ Pn
-            J[row, sl.a1] += coef * dwn_dN @ dN1["a1"]
-            if v1i is not None:
-                J[row, v1i] += coef * dwn_dN @ dN1["v1"]
-            for i in range(m1):
-                if i != k1:
-                    J[row, sl.l1[i]] += coef * dwn_dN @ Ga1[i]
-            cone -= p_r ** 2
-        F[sl.sigma] = cone
-        J[sl.sigma, sl.p_n] = 2.0 * mu * mu * p_n
-        J[sl.sigma, sl.p_t[0]] = -2.0 * p_t[0] / e[0] ** 2
-        if d == 3:
-            J[sl.sigma, sl.p_t[1]] = -2.0 * p_t[1] / e[1] ** 2
-        if sl.p_r >= 0:
-            J[sl.sigma, sl.p_r] = -2.0 * p_r
-
-    def _relative_velocity(self, z, P1, P2, v1i, v2i, a1, a2, T1, T2, sl):
-        """v_rel = v_2(a2) - v_1(a1) and its derivatives {name: (cols, d x len(cols))}."""
-        d = len(a1)
-        vrel = np.zeros(d)
-        dv = {}
-        for sign, Pz, vi, a, T, acols, tag in ((1.0, P2, v2i, a2, T2, sl.a2, "2"),
-                                               (-1.0, P1, v1i, a1, T1, sl.a1, "1")):
-            if vi is None:
+                for a in range(d - 1):
+                    dP_dn = dP_dn + s_p * p_t[a] * dtang[a]
+            dN1_a1 = dN1_da1 @ T1
+        # generalized contact impulses: +P at a2 on body 2, -P at a1 on body 1 (and moments)
+        for sign, b, Pz, a, T, aslc, vs in ((1.0, b2, P2, a2, T2, sl.a2s, v2s),
+                                            (-1.0, b1, P1, a1, T1, sl.a1s, v1s)):
+            if vs is None:
                 continue
-            vb = z[vi]
             r = a - Pz.p
-            w = Pz.omega
-            vel = Pz.A_v @ vb + _X(r) @ (Pz.A_w @ vb)
-            vrel += sign * vel
-            Ww = _W(w)
-            dv["v" + tag] = (vi, sign * (Pz.A_v + _X(r) @ Pz.A_w - Ww @ Pz.B_p))
-            dv["a" + tag] = (acols, sign * (Ww @ T))
-        return vrel, dv
+            M_fac = Pz.A_v.T + Pz.A_w.T @ _X(r).T              # k x d: generalized impulse of a force
+            gen = M_fac @ Pvec
+            if torsion:
+                gen = gen + Pz.A_w.T @ tau
+            F[vs] -= sign * gen
+            if not jac:
+                continue
+            J[vs, sl.p_n] -= sign * (M_fac @ (s_p * nhat))
+            if fr:
+                J[vs, sl.p_ts] -= sign * (M_fac @ (s_p * tang.T))
+            if torsion:
+                J[vs, sl.p_r] -= sign * (Pz.A_w.T @ (s_p * e_r * nhat))
+            dgen_dr = sign * (Pz.A_w.T @ (-_X(Pvec).T))         # lever arm r = a - p(v)
+            J[vs, aslc] -= dgen_dr @ T
+            J[vs, vs] += dgen_dr @ Pz.B_p
+            dgen_dn = sign * (M_fac @ dP_dn)
+            if torsion:
+                dgen_dn = dgen_dn + sign * (Pz.A_w.T * (s_p * e_r * p_r))
+            G_ = dgen_dn @ Pn
+            J[vs, sl.a1s] -= G_ @ dN1_a1
+            if v1s is not None:
+                J[vs, v1s] -= G_ @ dN1_dv1
+            for i in others:
+                J[vs, sl.l1[i]] -= G_ @ Ga1[i]
+        vrel = None
+        if fr:
+            mu = spec.friction.mu
+            vrel, dvrel = _relative_velocity(z, P1, P2, v1s, v2s, a1, a2, T1, T2, sl, jac)
+            e = (spec.friction.e_t, spec.friction.e_o)
+            sigma = z[sl.sigma]
+            rows = sl.rows_fric
+            cone = (mu * p_n) ** 2
+            for a in range(d - 1):
+                row = rows[a]
+                ea2 = e[a] ** 2
+                vt = tang[a] @ vrel
+                F[row] = ea2 * mu * p_n * vt + p_t[a] * sigma
+                cone -= (p_t[a] / e[a]) ** 2
+                if jac:
+                    J[row, sl.p_n] += ea2 * mu * vt
+                    J[row, sl.p_t[a]] += sigma
+                    J[row, sl.sigma] += p_t[a]
+                    coef = ea2 * mu * p_n
+                    for cols, block in dvrel:
+                        J[row, cols] += coef * (tang[a] @ block)
+                    dt_dN = (vrel @ dtang[a]) @ Pn
+                    J[row, sl.a1s] += coef * (dt_dN @ dN1_a1)
+                    if v1s is not None:
+                        J[row, v1s] += coef * (dt_dN @ dN1_dv1)
+                    for i in others:
+                        J[row, sl.l1[i]] += coef * (dt_dN @ Ga1[i])
+                    J[sl.sigma, sl.p_t[a]] = -2.0 * p_t[a] / e[a] ** 2
+            if torsion:
+                # e_r mu p_n (n . w_rel) + p~_r sigma = 0, p_r = e_r p~_r
+                row = rows[d - 1]
+                wrel = (P2.omega if v2s is not None else _ZERO3) - (P1.omega if v1s is not None else _ZERO3)
+                wn = nhat @ wrel
+                F[row] = e_r * mu * p_n * wn + p_r * sigma
+                cone -= p_r ** 2
+                if jac:
+                    J[row, sl.p_n] += e_r * mu * wn
+                    J[row, sl.p_r] += sigma
+                    J[row, sl.sigma] += p_r
+                    coef = e_r * mu * p_n
+                    if v2s is not None:
+                        J[row, v2s] += coef * (nhat @ P2.A_w)
+                    if v1s is not None:
+                        J[row, v1s] -= coef * (nhat @ P1.A_w)
+                    dwn_dN = wrel @ Pn
+                    J[row, sl.a1s] += coef * (dwn_dN @ dN1_a1)
+                    if v1s is not None:
+                        J[row, v1s] += coef * (dwn_dN @ dN1_dv1)
+                    for i in others:
+                        J[row, sl.l1[i]] += coef * (dwn_dN @ Ga1[i])
+                    J[sl.sigma, sl.p_r] = -2.0 * p_r
+            F[sl.sigma] = cone                                      # (22)
+            if jac:
+                J[sl.sigma, sl.p_n] = 2.0 * mu * mu * p_n
+        return (a1, a2, nhat, tang, float(fa2[ia]), vrel)
 
     # -- reading the solution --------------------------------------------------------------------
     def unpack_pair(self, z, k) -> PairState:
         spec, sl = self.specs[k], self.layout.pairs[k]
-        a1, _, a2, _ = self.points(z, k)
-        poses = {b: self.bodies[b].pose(self.body_velocity(z, b)) for b in (spec.obj1.body, spec.obj2.body)}
-        P1 = poses[spec.obj1.body]
-        fa1, Ga1, *_ = _eval_functions(spec.obj1.functions, P1, a1)
-        fa2, *_ = _eval_functions(spec.obj1.functions, P1, a2)
-        l1 = z[sl.l1].copy()
-        c = l1.copy()
-        c[spec.k1] = 1.0
-        N1 = c @ Ga1
-        nhat = N1 / np.linalg.norm(N1)
-        tang, _ = _tangents(nhat, np.eye(spec.dim), spec.tangent_axis)
+        self.fun(z)
+        a1, a2, nhat, tang, gap, _ = self._pairs_at[k]
         s_p = spec.impulse_scale
-        p_t = s_p * z[sl.p_t] if spec.with_friction else np.zeros(spec.dim - 1)
+        p_t = s_p * z[sl.p_ts] if spec.with_friction else np.zeros(spec.dim - 1)
         p_r = s_p * spec.friction.e_r * z[sl.p_r] if sl.p_r >= 0 else 0.0
         sigma = z[sl.sigma] if sl.sigma >= 0 else 0.0
-        return PairState(a1, a2, l1, z[sl.l2].copy(), s_p * z[sl.p_n], p_t, p_r, sigma, nhat, tang,
-                         float(np.max(fa2)))
+        return PairState(a1, a2, z[sl.l1s].copy(), z[sl.l2s].copy(), s_p * z[sl.p_n], p_t, p_r, sigma,
+                         nhat, tang, gap)
+
+    def relative_velocity(self, z, k):
+        """v_2(a2) - v_1(a1) of pair k at l+1 (world frame)."""
+        spec, sl = self.specs[k], self.layout.pairs[k]
+        a1, T1, a2, T2 = self.points(z, k)
+        b1, b2 = spec.obj1.body, spec.obj2.body
+        P1 = self.bodies[b1].pose(self.body_velocity(z, b1))
+        P2 = self.bodies[b2].pose(self.body_velocity(z, b2))
+        return _relative_velocity(z, P1, P2, self._vslice[b1], self._vslice[b2], a1, a2, T1, T2, sl, False)[0]
 
 
-def _tangents(nhat, Pn, axis):
-    """Tangent directions and d(tangent)/d(nhat) (d-1 of each)."""
+_EMPTY = np.zeros(0)
+_ZERO3 = np.zeros(3)
+_EYE = {2: np.eye(2), 3: np.eye(3)}
+
+
+def _as_slice(index):
+    """A contiguous index array as a slice (layouts only allocate contiguous blocks)."""
+    if len(index) == 0:
+        return slice(0, 0)
+    return slice(int(index[0]), int(index[-1]) + 1)
+
+
+def _relative_velocity(z, P1, P2, v1s, v2s, a1, a2, T1, T2, sl, jac):
+    """v_rel = v_2(a2) - v_1(a1) and, if jac, its derivative blocks [(cols, d x ncols)]."""
+    vrel = np.zeros(len(a1))
+    blocks = []
+    for sign, Pz, vs, a, T, aslc in ((1.0, P2, v2s, a2, T2, sl.a2s), (-1.0, P1, v1s, a1, T1, sl.a1s)):
+        if vs is None:
+            continue
+        vb = z[vs]
+        Xr = _X(a - Pz.p)
+        vrel += sign * (Pz.A_v @ vb + Xr @ (Pz.A_w @ vb))
+        if jac:
+            Ww = _W(Pz.omega)
+            blocks.append((vs, sign * (Pz.A_v + Xr @ Pz.A_w - Ww @ Pz.B_p)))
+            blocks.append((aslc, sign * (Ww @ T)))
+    return vrel, blocks
+
+
+_ROT90 = np.array([[0.0, -1.0], [1.0, 0.0]])
+
+
+def _tangents(nhat, axis, jac=True):
+    """Tangent directions and, if jac, d(tangent)/d(nhat) (d-1 of each)."""
     d = len(nhat)
     if d == 2:
-        S = np.array([[0.0, -1.0], [1.0, 0.0]])
-        return np.array([S @ nhat]), [S]
+        return (_ROT90 @ nhat)[None, :], [_ROT90]
     e = axis
     u = e - (e @ nhat) * nhat
-    nu = np.linalg.norm(u)
+    nu = math.sqrt(float(u @ u))
     t = u / nu
+    if not jac:
+        return np.array([t, np.cross(nhat, t)]), None
     du_dn = -np.outer(nhat, e) - (e @ nhat) * np.eye(3)
     dt_dn = (np.eye(3) - np.outer(t, t)) / nu @ du_dn
     o = np.cross(nhat, t)

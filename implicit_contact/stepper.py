@@ -20,7 +20,7 @@ whose rows were left out but whose solution has p_n > 0 is given its rows and th
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import math
 import warnings
 
@@ -243,9 +243,9 @@ class ImplicitContactStepper:
         lo = np.empty((len(self._objects), 3))
         hi = np.empty((len(self._objects), 3))
         for k, o in enumerate(self._objects):
-            l_, h_ = _aabb3(o.piece, poses[o.body])
+            l_, h_ = o.box(poses[o.body])
             if extra_poses is not None and o.body in extra_poses:
-                l2, h2 = _aabb3(o.piece, extra_poses[o.body])
+                l2, h2 = o.box(extra_poses[o.body])
                 l_, h_ = np.minimum(l_, l2), np.maximum(h_, h2)
             lo[k], hi[k] = l_, h_
         out = []
@@ -305,8 +305,7 @@ class ImplicitContactStepper:
                 z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
             else:
                 z0 = _transfer(*previous, problem, sliding)
-            result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper,
-                                   options=self.options.solver)
+            result = self._solve(problem, z0)
             x = result.x
             pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
             # rows on for every pair that touches, off for every pair whose gap is open
@@ -349,6 +348,23 @@ class ImplicitContactStepper:
                           t0 + h, 1, result.message, layout.n)
 
     # -- pieces of a step ------------------------------------------------------------------------
+    def _solve(self, problem, z0):
+        """solve_mcp, then one polishing Newton step if the residual is within (1e-3 tol, tol].
+
+        A converged step becomes the next step's warm start; a resting or rolling contact whose
+        solution is accepted at, say, 0.5 tol would be carried at that error (a slow sink of
+        ~tol h per step) instead of being exact. One more Newton step from a point inside the
+        quadratic basin makes it round-off exact."""
+        opts = self.options.solver
+        result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options=opts)
+        if result.success and result.residual > 1e-3 * opts.tol:
+            polish = ncp.solve_mcp(problem.fun, problem.jac, result.x, problem.lower, problem.upper,
+                                   options=replace(opts, tol=1e-3 * opts.tol, max_iterations=1))
+            if polish.residual < result.residual:
+                result = replace(result, x=polish.x, f=polish.f, residual=polish.residual,
+                                 iterations=result.iterations + polish.iterations)
+        return result
+
     def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos):
         scene = self.scene
         layout = fm.build_layout(nv, specs)
@@ -455,7 +471,7 @@ class ImplicitContactStepper:
         p_t = st.p_t
         pt = float(p_t[0]) if len(p_t) else 0.0
         po = float(p_t[1]) if len(p_t) > 1 else 0.0
-        vrel = _relative_velocity_at(problem, z, k)
+        vrel = problem.relative_velocity(z, k)
         slip = float(np.linalg.norm(st.tangents @ vrel))
         return ContactReport(b1.body_node, b2.body_node, st.a1, st.a2, st.normal, st.gap, st.p_n, pt, po,
                              st.p_r, st.sigma, slip, b1.name, b2.name)
@@ -492,18 +508,37 @@ class ImplicitContactStepper:
 # ---------------------------------------------------------------------------------------------
 # helpers
 # ---------------------------------------------------------------------------------------------
-@dataclass
 class _Object:
-    body: int
-    piece: object
-    funcs: tuple
-    fixed_halfspace: bool
-    friction: Friction
-    label: str
+    """One convex piece of one body, with a cheap world box for the broadphase: the exact AABB
+    for unbounded pieces and fixed bodies (recomputed only when the pose changes), and for moving
+    bounded pieces the box of a bounding sphere (one rotation of the piece's box centre)."""
 
-    @property
-    def key(self):
-        return self.label
+    def __init__(self, body, piece, funcs, fixed_halfspace, friction, label):
+        self.body, self.piece, self.funcs = body, piece, funcs
+        self.fixed_halfspace, self.friction, self.label = fixed_halfspace, friction, label
+        self.key = label
+        d = piece.dim
+        self._sphere = None
+        if piece.bounded:
+            lo, hi = (np.asarray(v, float) for v in piece.aabb(np.eye(d), np.zeros(d)))
+            centre = np.zeros(3)
+            centre[:d] = 0.5 * (lo + hi)
+            self._sphere = (centre, 0.5 * float(np.linalg.norm(hi - lo)))
+        self._last = None
+
+    def box(self, pose):
+        R, p = pose
+        if self._sphere is not None:
+            centre, radius = self._sphere
+            c = R @ centre + p
+            if self.piece.dim == 2:
+                return np.array([c[0] - radius, c[1] - radius, 0.0]), np.array([c[0] + radius, c[1] + radius, 0.0])
+            return c - radius, c + radius
+        if self._last is not None and np.array_equal(self._last[0], R) and np.array_equal(self._last[1], p):
+            return self._last[2]
+        out = _aabb3(self.piece, pose)
+        self._last = (R.copy(), p.copy(), out)
+        return out
 
 
 def _pose_dim(pose, dim):
@@ -561,16 +596,6 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
     return l1, l2, k1
 
 
-def _relative_velocity_at(problem, z, k):
-    spec, sl = problem.specs[k], problem.layout.pairs[k]
-    a1, T1, a2, T2 = problem.points(z, k)
-    P1 = problem.bodies[spec.obj1.body].pose(problem.body_velocity(z, spec.obj1.body))
-    P2 = problem.bodies[spec.obj2.body].pose(problem.body_velocity(z, spec.obj2.body))
-    vrel, _ = problem._relative_velocity(z, P1, P2, problem.bodies[spec.obj1.body].vindex,
-                                         problem.bodies[spec.obj2.body].vindex, a1, a2, T1, T2, sl)
-    return vrel
-
-
 def _contact_shift(b1, b2, states, h):
     """Warm start: a contact point travels with its bodies' translation (exact for rolling)."""
     vel = []
@@ -607,7 +632,7 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
             continue
         spec = new.specs[k]
         st = old.unpack_pair(x, k)
-        vt = st.tangents @ _relative_velocity_at(old, x, k)
+        vt = st.tangents @ old.relative_velocity(x, k)
         e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
         sigma = float(np.sqrt(np.sum((e * vt) ** 2)))
         if sigma > 0.0:
