@@ -1,0 +1,93 @@
+"""The step residual of [GI] eqs (15)-(22) and its analytic Jacobian against central differences."""
+import numpy as np
+import pytest
+
+from implicit_contact import formulation as fm
+from implicit_contact import shapes as shp
+from implicit_contact.params import Friction
+
+H = 0.01
+EPS_FD = 1e-6            # central-difference step
+ATOL_FD = 5e-6           # |J - J_fd|: truncation O(eps^2 |F'''|) + round-off O(1e-16 |F| / eps) on rows / h
+
+
+def _body(kind, dim, rng, col):
+    if kind == "fixed":
+        R = fm.so3_exp(np.array([0.0, 0.0, 0.3])) if dim == 3 else np.eye(3)
+        return fm.BodyKinematics(fm.FIXED, dim, R, np.array([0.1, 0.2, 0.3 if dim == 3 else 0.0]), None, H, None), 0
+    if kind == "free":
+        R, p = fm.so3_exp(rng.normal(size=3)), rng.normal(size=3)
+        return fm.BodyKinematics(fm.FREE, 3, R, p, None, H, np.arange(col, col + 6), 1.0), 6
+    q0 = rng.normal(size=3)
+    c, s = np.cos(q0[2]), np.sin(q0[2])
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return fm.BodyKinematics(fm.PLANAR, 2, R, np.r_[q0[:2], 0.0], q0, H, np.arange(col, col + 3), 1.0), 3
+
+
+CASES = [
+    # (dim, kinds, piece 1, piece 2, body 2 is a fixed half-space, friction)
+    (2, ("planar", "fixed"), shp.Disc(1.0, center=[0.1, 0.2]), shp.HalfPlane([0.0, 1.0], 0.0), True, Friction(0.4)),
+    (2, ("planar", "planar"), shp.Ellipse([1.0, 0.5]), shp.Superellipse([0.6, 0.3], 4.0), False, Friction(0.4)),
+    (2, ("planar", "fixed"), shp.Disc(0.7), shp.Intersection.rectangle([0.5, 0.3]), False, Friction(0.3)),
+    (3, ("free", "fixed"), shp.Sphere(0.5, center=[0.1, 0.0, 0.2]), shp.HalfSpace([0, 0, 1], 0.0), True,
+     Friction(0.3, 1.0, 0.8, 0.2)),
+    (3, ("free", "free"), shp.Ellipsoid([1.0, 0.5, 0.7]), shp.Superquadric([0.5, 0.4, 0.3], 4.0), False,
+     Friction(0.3, 1.0, 0.8, 0.2)),
+    (3, ("free", "free"), shp.Sphere(0.4), shp.Intersection.box([0.3, 0.2, 0.1]), False, Friction(0.3, 1.0, 1.0, 0.0)),
+    (3, ("free", "fixed"), shp.Ellipsoid([0.3, 0.2, 0.1]), shp.Sphere(2.0), False, Friction(0.0)),
+]
+
+
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_step_jacobian_matches_central_differences(case):
+    dim, kinds, piece1, piece2, fixed2, friction = CASES[case]
+    rng = np.random.default_rng(case)
+    bodies, nv, col = [], [], 0
+    for kind in kinds:
+        kin, k = _body(kind, dim, rng, col)
+        bodies.append(kin)
+        if k:
+            nv.append(k)
+            col += k
+    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
+    o2 = fm.ContactObject(1, tuple(piece2.functions), fixed2)
+    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
+    spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05)
+    layout = fm.build_layout(nv, [spec])
+    blocks = []
+    for b, kin in enumerate(bodies):
+        if kin.vindex is not None:
+            k = len(kin.vindex)
+            A = rng.normal(size=(k, k))
+            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
+    z = 0.3 * rng.normal(size=layout.n)
+    sl = layout.pairs[0]
+    for idx in (sl.l1, sl.l2):
+        z[idx] = np.abs(z[idx]) + 0.5
+    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
+    if sl.sigma >= 0:
+        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
+    J = problem.jac(z).copy()
+    np.testing.assert_array_equal(problem.fun(z), problem._assemble(z, False)[0])
+    J_fd = np.empty_like(J)
+    for i in range(layout.n):
+        e = np.zeros(layout.n)
+        e[i] = EPS_FD
+        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * EPS_FD)
+    scale = np.maximum(1.0, np.abs(J_fd))
+    assert np.max(np.abs(J - J_fd) / scale) <= ATOL_FD
+
+
+def test_layout_builds_only_the_rows_the_pair_needs():
+    """Example 1's 11 unknowns ([GI] Sec. 6.1); no friction rows at mu = 0; no torsion at e_r = 0."""
+    disc, ground = shp.Disc(1.0), shp.HalfPlane([0.0, 1.0], 0.0)
+    o1, o2 = fm.ContactObject(0, (disc,), False), fm.ContactObject(1, (ground,), True)
+    n = lambda fr, d=2: fm.build_layout([3 if d == 2 else 6], [fm.PairSpec("k", o1, o2, d, fr, fr.active)]).n
+    assert n(Friction(0.4)) == 11           # v(3) a1(2) a2x(1) l1 l2 p_n p_t sigma
+    assert n(Friction(0.0)) == 9
+    s1, s2 = fm.ContactObject(0, (shp.Sphere(1.0),), False), fm.ContactObject(1, (shp.HalfSpace([0, 0, 1], 0),), True)
+    n3 = lambda fr: fm.build_layout([6], [fm.PairSpec("k", s1, s2, 3, fr, fr.active, 0, np.eye(3)[0])]).n
+    assert n3(Friction(0.2, 1, 1, 0.3)) == 6 + 3 + 2 + 2 + 1 + 2 + 1 + 1
+    assert n3(Friction(0.2, 1, 1, 0.0)) == 6 + 3 + 2 + 2 + 1 + 2 + 1
+    assert n3(Friction(0.0)) == 6 + 3 + 2 + 2 + 1
