@@ -1,0 +1,301 @@
+"""solve_mcp against complementarity problems whose answers are known independently of it.
+
+The problems (comparisons/mcp_problems.py) carry published solutions, closed-form solution sets,
+solutions built in by construction, or Lemke's pivoting result.  The contract tests check what
+the stepper relies on: statuses instead of exceptions, ValueError for malformed input only,
+NaN never hidden, sparse and dense paths agreeing.
+"""
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from comparisons.mcp_problems import lemke, standard_problems
+from implicit_contact.ncp import McpResult, SolverOptions, Status, solve_mcp
+
+MIN_SOLVED_FRACTION = 0.95   # of all (problem, start) pairs, the brief's robustness target
+RTOL_FD = 1e-6               # central differences, step 1e-6, relative to max |J| of O(1..1e3)
+FD_STEP = 1e-6
+ATOL_SPARSE_DENSE = 1e-12    # same iterates up to LU pivoting round-off
+ATOL_LEMKE = 1e-9            # Lemke's support polished by one LU solve of a P-matrix block
+ATOL_STABLE_FB = 1e-6        # relative, for phi(1, 1e-17) = 1e-17 (cancellation would give 0)
+QUADRATIC_MERIT_FACTOR = 10.0  # psi_{k+1} <= K psi_k^2 for O(1) problem data (measured ~0.35)
+ATOL_EXACT = 1e-12           # listed exact solutions evaluated in floating point, O(1) data
+ATOL_SMALL_LCP = 1e-10       # residual tol 1e-10 times ||M^-1|| = O(1) for the 2x2 examples
+RTOL_RECOMPUTE = 1e-12       # the natural residual recomputed here with np.clip
+
+PROBLEMS = standard_problems()
+PAIRS = [(p, label, x0) for p in PROBLEMS for label, x0 in p.starts]
+
+
+@pytest.fixture(scope="module")
+def results():
+    return {(p.name, label): solve_mcp(p.fun, p.jac, x0, p.lower, p.upper)
+            for p, label, x0 in PAIRS}
+
+
+def _natural_residual(x, F, lower, upper):
+    return float(np.max(np.abs(x - np.clip(x - F, lower, upper))))
+
+
+# ---------------------------------------------------------------- the problem table itself
+
+@pytest.mark.parametrize("problem", PROBLEMS, ids=lambda p: p.name)
+def test_problem_jacobian_matches_central_differences(problem):
+    for _, x0 in problem.starts[:2]:
+        # an interior point near the start: F may be singular on the bounds (nash, mathiesen)
+        x = np.clip(x0, problem.lower, problem.upper) + 0.1
+        x = np.where(problem.lower == problem.upper, problem.lower, x)
+        J = problem.jac(x)
+        fd = np.column_stack([(problem.fun(x + FD_STEP * e) - problem.fun(x - FD_STEP * e))
+                              / (2 * FD_STEP) for e in np.eye(problem.n)])
+        assert np.abs(J - fd).max() <= RTOL_FD * max(1.0, np.abs(J).max())
+
+
+@pytest.mark.parametrize("problem", PROBLEMS, ids=lambda p: p.name)
+def test_listed_solutions_solve_the_problem(problem):
+    for x in problem.solutions:
+        assert _natural_residual(x, problem.fun(x), problem.lower, problem.upper) <= ATOL_EXACT
+        assert problem.distance(x) == 0.0
+
+
+def test_lemke_oracle_reproduces_murty_and_fathi():
+    n = 8
+    murty = np.eye(n) + 2.0 * np.triu(np.ones((n, n)), 1)
+    np.testing.assert_allclose(lemke(murty, -np.ones(n)), np.eye(n)[-1], atol=ATOL_LEMKE)
+    i = np.arange(1, n + 1)
+    fathi = 4.0 * (np.minimum.outer(i, i) - 1) + 2.0
+    fathi[np.diag_indices(n)] = 4.0 * (i - 1) + 1.0
+    np.testing.assert_allclose(lemke(fathi, -np.ones(n)), np.eye(n)[0], atol=ATOL_LEMKE)
+
+
+# ---------------------------------------------------------------- solving the table
+
+def test_solved_fraction_over_all_problem_start_pairs(results):
+    failed = []
+    for p, label, _ in PAIRS:
+        r = results[p.name, label]
+        if not (r.success and p.distance(r.x) <= p.solution_atol):
+            failed.append(f"{p.name}/{label}: {r.status.value}, residual {r.residual:.1e}, "
+                          f"distance {p.distance(r.x):.1e}")
+    fraction = 1.0 - len(failed) / len(PAIRS)
+    print(f"\nsolved {len(PAIRS) - len(failed)}/{len(PAIRS)} = {fraction:.1%}; failed: {failed}")
+    assert fraction >= MIN_SOLVED_FRACTION, f"solved {fraction:.1%}; failed: {failed}"
+
+
+def test_every_converged_pair_is_at_the_known_solution(results):
+    wrong = [(p.name, label, p.distance(results[p.name, label].x)) for p, label, _ in PAIRS
+             if results[p.name, label].success
+             and not p.distance(results[p.name, label].x) <= p.solution_atol]
+    assert not wrong, f"converged to a point that is not the known solution: {wrong}"
+
+
+def test_no_failures_outside_the_documented_hard_starts(results):
+    surprising = [(p.name, label, results[p.name, label].status.value) for p, label, _ in PAIRS
+                  if not results[p.name, label].success and label not in p.hard_starts]
+    assert not surprising, surprising
+
+
+def test_reported_residual_is_the_natural_residual_and_history_is_consistent(results):
+    for p, label, _ in PAIRS:
+        r = results[p.name, label]
+        assert isinstance(r, McpResult)
+        F = p.fun(r.x)
+        assert r.residual == pytest.approx(_natural_residual(r.x, F, p.lower, p.upper),
+                                           rel=RTOL_RECOMPUTE, abs=1e-300)
+        assert r.success == (r.residual <= SolverOptions().tol)
+        assert len(r.merit_history) == r.iterations + 1 == len(r.steps) + 1
+        assert np.all((r.x >= p.lower) & (r.x <= p.upper)), "iterates stay in the box"
+
+
+def test_kojima_shindo_reaches_both_published_solutions(results):
+    problem = PROBLEMS[0]
+    reached = {min(range(2), key=lambda k: np.abs(results["kojima_shindo", label].x
+                                                  - problem.solutions[k]).max())
+               for label, _ in problem.starts if results["kojima_shindo", label].success}
+    assert reached == {0, 1}
+
+
+def test_fast_local_rate_at_the_degenerate_kojima_shindo_solution():
+    """x* = (sqrt(6)/2, 0, 0, 1/2) has x3 = F3 = 0; the merit still falls superlinearly."""
+    problem = PROBLEMS[0]
+    r = solve_mcp(problem.fun, problem.jac, dict(problem.starts)["near"], problem.lower,
+                  problem.upper)
+    assert r.success and np.abs(r.x - problem.solutions[1]).max() <= problem.solution_atol
+    merits = [m for m in r.merit_history if m > 0.0]
+    ratios = [b / a for a, b in zip(merits, merits[1:])]
+    assert r.iterations <= 5
+    assert ratios[-1] <= 1e-6 and ratios[-2] <= 1e-3, ratios
+
+
+def test_billups_start_at_zero_is_a_reported_stationary_point():
+    """MCPLIB billups from x0 = 0: a local minimiser of the merit; the solver says so."""
+    problem = next(p for p in PROBLEMS if p.name == "billups")
+    r = solve_mcp(problem.fun, problem.jac, [0.0], problem.lower, problem.upper)
+    assert r.status is Status.LINE_SEARCH_FAILED and not r.success
+    assert r.x[0] == 0.0
+    assert r.residual == pytest.approx(0.01, rel=RTOL_RECOMPUTE)   # |min(0, F(0))| = 0.01
+    assert "stationary" in r.message
+
+
+# ---------------------------------------------------------------- contracts
+
+@pytest.mark.parametrize("problem", [p for p in PROBLEMS if p.solutions], ids=lambda p: p.name)
+def test_exact_start_converges_in_zero_iterations(problem):
+    for x in problem.solutions:
+        r = solve_mcp(problem.fun, problem.jac, x, problem.lower, problem.upper)
+        assert r.success and r.iterations == 0 and r.nfev == 1 and r.njev == 0
+        np.testing.assert_array_equal(r.x, x)
+
+
+def test_capped_hard_case_returns_a_status():
+    problem = next(p for p in PROBLEMS if p.name == "rosenbrock_box")
+    r = solve_mcp(problem.fun, problem.jac, dict(problem.starts)["classic"], problem.lower,
+                  problem.upper, SolverOptions(max_iterations=1))
+    assert r.status is Status.MAX_ITERATIONS and not r.success and r.iterations == 1
+    assert r.residual > SolverOptions().tol and "max_iterations" in r.message
+
+
+def test_zero_iterations_only_evaluates_the_start():
+    problem = PROBLEMS[0]
+    r = solve_mcp(problem.fun, problem.jac, np.ones(4), problem.lower, problem.upper,
+                  SolverOptions(max_iterations=0))
+    assert r.status is Status.MAX_ITERATIONS and r.nfev == 1 and r.njev == 0
+    assert r.residual == pytest.approx(_natural_residual(np.ones(4), problem.fun(np.ones(4)),
+                                                         problem.lower, problem.upper))
+
+
+def test_start_is_projected_and_not_modified():
+    problem = next(p for p in PROBLEMS if p.name == "box_lcp_mixed")
+    x0 = np.full(problem.n, -5.0)
+    seen = []
+    r = solve_mcp(lambda x: seen.append(x.copy()) or problem.fun(x), problem.jac, x0,
+                  problem.lower, problem.upper)
+    np.testing.assert_array_equal(x0, -5.0)
+    np.testing.assert_array_equal(seen[0], np.clip(x0, problem.lower, problem.upper))
+    assert r.success
+
+
+def _lcp(M, q):
+    M = np.asarray(M, float)
+    q = np.asarray(q, float)
+    return (lambda x: M @ x + q), (lambda x: M)
+
+
+def test_start_on_a_kink_uses_a_generalized_jacobian_and_converges_fast():
+    """x0 = (0, 1): row 1 has x1 = 0 and F1 = 0 exactly, the FB kink; solution (0, 4/3)."""
+    fun, jac = _lcp([[1.0, 1.0], [1.0, 3.0]], [-1.0, -4.0])
+    r = solve_mcp(fun, jac, [0.0, 1.0], 0.0, np.inf)
+    assert r.success and r.iterations <= 5 and r.steps == "N" * r.iterations
+    np.testing.assert_allclose(r.x, [0.0, 4.0 / 3.0], atol=ATOL_SMALL_LCP)
+    m = r.merit_history
+    # quadratic rate: Phi_{k+1} <= C Phi_k^2, i.e. psi_{k+1} <= C^2 psi_k^2 / 2 (C ~ 1 here)
+    assert m[-1] <= QUADRATIC_MERIT_FACTOR * m[-2] ** 2
+    assert m[-2] <= QUADRATIC_MERIT_FACTOR * m[-3] ** 2
+
+
+def test_start_on_an_upper_bound_kink_of_a_box_row():
+    """Box [0, 1]^2, x0 = (1, 0.5): x1 = u1 and F1 = 0 (inner-level kink).  M is positive
+    definite, so the solution (1, 0) (both rows degenerate) is unique."""
+    fun, jac = _lcp([[2.0, 1.0], [1.0, 2.0]], [-2.5, -1.0])
+    r = solve_mcp(fun, jac, [1.0, 0.5], 0.0, 1.0)
+    assert r.success and r.iterations <= 8 and r.steps == "N" * r.iterations
+    np.testing.assert_allclose(r.x, [1.0, 0.0], atol=ATOL_SMALL_LCP)
+
+
+def test_singular_jacobian_falls_back_to_levenberg_marquardt_without_stalling():
+    """Two identical free rows: J singular everywhere, solutions a line.  The damping tied to
+    ||Phi|| must reach tol = 1e-12 (a fixed 1e-6 damping stalls around 1e-7)."""
+    def fun(x):
+        return np.full(2, x[0] + x[1] - 1.0)
+
+    def jac(x):
+        return np.ones((2, 2))
+
+    r = solve_mcp(fun, jac, [3.0, -7.0], -np.inf, np.inf, SolverOptions(tol=ATOL_EXACT))
+    assert r.success and "L" in r.steps and r.iterations <= 10
+    assert abs(r.x.sum() - 1.0) <= ATOL_EXACT
+
+
+def test_inconsistent_singular_system_returns_a_status():
+    fun, jac = _lcp([[1.0, 1.0], [1.0, 1.0]], [-1.0, 1.0])   # x1 + x2 = 1 and = -1: no solution
+    r = solve_mcp(fun, jac, [0.3, 0.2], -np.inf, np.inf)
+    assert not r.success
+    assert r.status in (Status.SINGULAR, Status.LINE_SEARCH_FAILED, Status.MAX_ITERATIONS)
+
+
+def test_sparse_jacobian_gives_the_same_answer_as_dense():
+    for name in ("kojima_shindo", "box_lcp_mixed", "random_lcp_20_s12", "mathiesen"):
+        problem = next(p for p in PROBLEMS if p.name == name)
+        for _, x0 in problem.starts:
+            dense = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper)
+            sparse = solve_mcp(problem.fun, lambda x: sp.csr_matrix(problem.jac(x)), x0,
+                               problem.lower, problem.upper)
+            assert sparse.status is dense.status and sparse.iterations == dense.iterations
+            np.testing.assert_allclose(sparse.x, dense.x, atol=ATOL_SPARSE_DENSE)
+
+
+def test_stable_fischer_burmeister_evaluation():
+    """One NCP row with x = 1 and F = 1e-17: phi = 2ab / (a + b + r) = 1e-17; the textbook
+    a + b - sqrt(a^2 + b^2) rounds to 0 (and the penalty term is (1 - lam) 1e-17)."""
+    r = solve_mcp(lambda x: np.array([1e-17]), lambda x: np.zeros((1, 1)), [1.0], 0.0, np.inf,
+                  SolverOptions(max_iterations=0))
+    assert math.sqrt(2.0 * r.merit_history[0]) == pytest.approx(1e-17, rel=ATOL_STABLE_FB)
+
+
+# ---------------------------------------------------------------- failures are reported, not hidden
+
+def test_nan_from_fun_at_the_start_gives_not_finite():
+    r = solve_mcp(lambda x: np.array([np.nan, 1.0]), lambda x: np.eye(2), [1.0, 1.0], 0.0, np.inf)
+    assert r.status is Status.NOT_FINITE and not r.success and np.isnan(r.residual)
+    assert np.isnan(r.f[0])
+
+
+def test_nan_from_fun_during_the_iteration_gives_not_finite_at_the_last_finite_iterate():
+    def fun(x):   # defined only for x < 2; the Newton step from 1 lands at 3
+        return np.array([x[0] - 3.0]) if x[0] < 2.0 else np.array([np.nan])
+
+    r = solve_mcp(fun, lambda x: np.eye(1), [1.0], -np.inf, np.inf)
+    assert r.status is Status.NOT_FINITE and not r.success
+    np.testing.assert_array_equal(r.x, [1.0])
+    assert r.residual == pytest.approx(2.0)
+
+
+def test_inf_from_jac_gives_not_finite():
+    r = solve_mcp(lambda x: x - 2.0, lambda x: np.full((2, 2), np.inf), [0.0, 0.0], 0.0, np.inf)
+    assert r.status is Status.NOT_FINITE and "jac" in r.message
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(x0=np.zeros((2, 2))), "x0"),
+    (dict(x0=np.array([np.nan, 0.0])), "x0 must be finite"),
+    (dict(x0=np.array([np.inf, 0.0])), "x0 must be finite"),
+    (dict(lower=np.zeros(3)), "lower must be a scalar or have shape"),
+    (dict(upper=np.ones((2, 1))), "upper must be a scalar or have shape"),
+    (dict(lower=np.array([0.0, 2.0]), upper=np.array([1.0, 1.0])), "lower must be <= upper"),
+    (dict(lower=np.array([np.nan, 0.0])), "NaN"),
+    (dict(lower=np.array([np.inf, np.inf]), upper=np.inf), "lower must be < \\+inf"),
+    (dict(fun=lambda x: np.zeros(3)), "fun\\(x\\) must return an array of shape"),
+    (dict(jac=lambda x: np.eye(3)), "jac\\(x\\) must return shape"),
+    (dict(jac=lambda x: sp.eye(3, format="csr")), "jac\\(x\\) must return shape"),
+    (dict(options="fast"), "options must be a SolverOptions"),
+])
+def test_malformed_input_raises_value_error(kwargs, match):
+    args = dict(fun=lambda x: x - 2.0, jac=lambda x: np.eye(2), x0=np.zeros(2), lower=0.0,
+                upper=np.inf)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        solve_mcp(args["fun"], args["jac"], args["x0"], args["lower"], args["upper"],
+                  **({"options": args["options"]} if "options" in args else {}))
+
+
+@pytest.mark.parametrize("kwargs", [dict(tol=0.0), dict(tol=np.nan), dict(max_iterations=-1),
+                                    dict(max_iterations=2.5), dict(armijo=0.5),
+                                    dict(nonmonotone_memory=0), dict(min_newton_step=2.0),
+                                    dict(min_step=1.0), dict(descent_power=2.0),
+                                    dict(lm_factor=0.0), dict(fb_lambda=0.0),
+                                    dict(fb_lambda=1.5)])
+def test_invalid_options_raise_value_error(kwargs):
+    with pytest.raises(ValueError, match="SolverOptions"):
+        SolverOptions(**kwargs)
