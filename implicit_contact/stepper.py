@@ -367,7 +367,12 @@ class ImplicitContactStepper:
 
     def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos):
         scene = self.scene
-        layout = fm.build_layout(nv, specs)
+        signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim) for sp in specs))
+        layout = self._layout_cache.get(signature)
+        if layout is None:
+            if len(self._layout_cache) > 256:       # scenes whose pairs keep changing
+                self._layout_cache.clear()
+            layout = self._layout_cache[signature] = fm.build_layout(nv, specs)
         kins = []
         for b in body_ids:
             rec = scene.bodies[b]

@@ -87,23 +87,29 @@ def simulate(duration: float = 5.0, h: float = H, on_failure: str = "raise") -> 
 
 @dataclass
 class ContactSeries:
-    """Per step: normal force [N], friction force magnitude [N], slip speed [m/s]."""
+    """Per step: normal force [N]; friction magnitude [N] in the norm of the friction ellipsoid,
+    sqrt((f_t/e_t)^2 + (f_o/e_o)^2 + (m_r/e_r)^2), which the elliptic law ([GI] eq 5) bounds by
+    mu times the normal force and which equals it while sliding; the tangential force alone [N]
+    (smaller while the contact also resists spin); slip speed [m/s]."""
     t: np.ndarray
     normal: np.ndarray
     friction: np.ndarray
+    tangential: np.ndarray
     slip: np.ndarray
 
 
 def contact_series(traj: Trajectory, body_name: str) -> ContactSeries:
-    t, n, f, s = [], [], [], []
+    f_ = FRICTION
+    t, n, f, ft, s = [], [], [], [], []
     for k, rep in enumerate(traj.reports):
         h = traj.times[k + 1] - traj.times[k]
         c = next((c for c in rep.contacts if body_name in (c.name_a + c.name_b)), None)
         t.append(traj.times[k + 1])
         n.append(c.p_n / h if c else 0.0)
-        f.append(np.hypot(c.p_t, c.p_o) / h if c else 0.0)
+        f.append(np.sqrt((c.p_t / f_.e_t) ** 2 + (c.p_o / f_.e_o) ** 2 + (c.p_r / f_.e_r) ** 2) / h if c else 0.0)
+        ft.append(np.hypot(c.p_t, c.p_o) / h if c else 0.0)
         s.append(c.slip if (c and c.p_n > 0) else 0.0)
-    return ContactSeries(np.array(t), np.array(n), np.array(f), np.array(s))
+    return ContactSeries(np.array(t), np.array(n), np.array(f), np.array(ft), np.array(s))
 
 
 ROLL_SLIP = 1e-6  # [m/s] tangential slip below which a contact counts as rolling
@@ -151,7 +157,8 @@ def main(argv=None):
     for ax, name, title in ((axes[0, 1], "sphere_r10", "Contact 1"), (axes[1, 0], "sphere_r9", "Contact 2")):
         c = contact_series(traj, name)
         ax.plot(c.t, c.normal, label="normal force")
-        ax.plot(c.t, c.friction, label="|friction force|")
+        ax.plot(c.t, c.friction, label="friction (ellipsoid norm, with torsion)")
+        ax.plot(c.t, c.tangential, ":", label="|tangential friction force|")
         ax.plot(c.t, FRICTION.mu * c.normal, "--", label="mu x normal force")
         ax.set(xlabel="time [s]", ylabel="force [N]", title=f"{title}: friction against mu x normal (Fig. 5a)")
         ax.legend(fontsize=8)
