@@ -1,0 +1,829 @@
+"""Static closest points of two convex bodies in given poses, from the KKT conditions of [GI].
+
+Problem ([GI] eq 9)
+-------------------
+    (a1, a2) = argmin { |xi1 - xi2|^2 : f_i(xi1) <= 0 (body 1), g_j(xi2) <= 0 (body 2) },
+
+with f_i, g_j the world-frame functions f(R^T (x - p)) of the shapes of shapes.py. Its KKT
+conditions are eqs (24)-(27) with one multiplier per function ("hat" multipliers):
+
+    a1 - a2 = - sum_i lh_i grad f_i(a1)                                                  (24)
+    a1 - a2 =   sum_j lh_j grad g_j(a2)                                                  (25)
+    0 <= lh_i _|_ -f_i(a1) >= 0,   0 <= lh_j _|_ -g_j(a2) >= 0                          (26-27)
+
+At a1 = a2 all lh vanish and every common point solves (24)-(27), so [GI] divides by the
+multiplier of one active surface k1 of body 1 (eqs 28-31; eqs 15-18 when body 1 is one
+function): l_k1 = lh_k1, l_i = lh_i / lh_k1, l_j = lh_j / lh_k1, and
+
+    a1 - a2 = -l_k1 (grad f_k1(a1) + sum_{i != k1} l_i grad f_i(a1))                   (28)
+    grad f_k1(a1) + sum_{i != k1} l_i grad f_i(a1) = - sum_j l_j grad g_j(a2)           (29)
+    0 <= l_i _|_ -f_i(a1) >= 0,    0 <= l_j _|_ -g_j(a2) >= 0                           (30-31)
+
+which stays regular when the bodies touch (l_k1 = 0, the other l finite).
+
+What is solved
+--------------
+All three systems are box MCPs for ncp.solve_mcp (positions free, multipliers in [0, inf)),
+each with its exact Jacobian (Hessians of the shapes enter through the gradients):
+
+* one body is a single function f: eqs (15)-(18) / (28)-(31) with that body as F, unknowns
+  (a_F, a_G, l_F, l_G,j) -- k1 is known a priori ([GI] Sec. 7);
+* body 1 an intersection, body 2 one function: the same with the roles swapped, converted back
+  through the hat multipliers (lh_F = l_F, lh_i = l_F l_i);
+* both bodies are intersections: the symmetric form (24)-(27), which needs no k1 and is valid
+  for separated bodies; then k1 = the index of body 1's largest multiplier and a polish with
+  (28)-(31), because in (24)-(27) every multiplier is proportional to the distance, so the
+  ratios (and the normal) lose accuracy as the bodies close in;
+* overlap and depth: the convex problem min_x max(max_i f_i(x), max_j g_j(x)) in epigraph form
+  min t s.t. h_k(x) <= t, whose KKT system is
+      sum_k mu_k grad h_k(x) = 0,   1 - sum_k mu_k = 0,   0 <= mu_k _|_ t - h_k(x) >= 0.
+  Its optimal value t* is < 0 iff the interiors intersect, 0 iff the bodies touch, > 0 iff they
+  are apart; the minimiser x* is a deepest common point in the algebraic sense, and the depth is
+  reported as -t* (a length to first order since every f is a normalised signed distance near
+  its surface, see shapes.py; it is not the Euclidean penetration depth). Two polyhedra make
+  this a linear program with typically degenerate optima (an edge on a vertex), solved by
+  scipy's HiGHS instead. When t* = 0 (touching) eqs (28)-(31) are solved once more from x*
+  with k1 and ratios from the multipliers mu: they are regular there (Prop. 4.3).
+
+Every solution of (15)-(18) with a1 != a2 is a KKT point of the convex problem (9), hence the
+global minimum; the spurious roots of (15)-(18) for overlapping bodies all have a1 = a2 with
+f(a1) < 0 (the reason [GI] adds eq 19). So a converged KKT solve with a positive distance is
+final, and a zero distance is classified by f(a1) (touching iff f(a1) = 0) or by t*.
+
+Scaling and start
+-----------------
+Positions are solved in units of L = the smaller finite length scale of the two shapes about
+an origin near the bodies, so the solver's tolerance means the same for millimetre and metre
+scenes; functions are divided by L (they are lengths), multipliers l_k1 and lh are lengths.
+Newton on KKT needs a start near the solution. Against a half-space with normal n the other
+body's closed-form support point along -n (shapes.support) and its projection on the plane
+are the exact answer. Otherwise, when both shapes have closed-form support points, a few
+fixed-point steps d <- s2(-d) - s1(d) from the line between the interior points (exact for two
+spheres at once); when d.(s2 - s1) > 0 this also proves the bodies apart. Failing that, each
+body's point is the exit of the ray from its interior point towards the other's; if the two
+rays share a stretch of the segment, the bodies overlap and only the depth problem is solved.
+Multipliers start from (15)-(16) by non-negative least squares over near-active members.
+
+Normal: unit, world, from body 1 towards body 2, always from gradients: grad f_k1(a1) +
+sum l_i grad f_i(a1) normalised ([GI] Sec. 4.1 notes: never (a1 - a2)/|a1 - a2|). When
+overlapping, the body-1 part sum mu_i grad f_i(x*) of the depth problem (or minus the body-2
+part, or the line between the interior points if both vanish).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+import math
+
+import numpy as np
+from scipy.optimize import linprog, nnls
+
+from .ncp import SolverOptions, Status, solve_mcp
+from .shapes import ConvexFunction, HalfPlane, HalfSpace, Intersection, Union
+
+__all__ = ["closest_points", "ClosestPointResult", "ClosestPointOptions"]
+
+NEAR_ACTIVE = 0.1          # [L] members within this of the surface get a starting multiplier
+ROTATION_TOL = 1e-9        # accepted |R^T R - I|_max of a pose
+SMALL_HAT_DISTANCE = 1e-6  # [L] below this a distance from eqs (24)-(27) alone is re-checked
+SUPPORT_STEPS = 4          # fixed-point steps d <- s2(-d) - s1(d) of the support-point start
+
+
+@dataclass(frozen=True)
+class ClosestPointOptions:
+    """Options of closest_points.
+
+    solver: options of ncp.solve_mcp; its tol bounds the natural residual in units of the
+        length scale L (nominal 1e-12..1e-9).
+    touch_tol: relative to L: a distance, |f(a1)| or depth below touch_tol * L counts as
+        touching, > 0, nominal 1e-10..1e-6.
+    depth_tol: natural-residual tolerance of the depth problem (units of L), used when larger
+        than solver.tol: its minimum can be degenerate (flat minima of high exponents, polytope
+        faces), where Newton is only linear; nominal 1e-11..1e-8, must exceed 0 and stay below
+        touch_tol so that touching and overlapping stay distinguishable.
+    """
+
+    solver: SolverOptions = field(default_factory=lambda: SolverOptions(tol=1e-12, max_iterations=60))
+    touch_tol: float = 1e-9
+    depth_tol: float = 1e-10
+
+    def __post_init__(self):
+        if not isinstance(self.solver, SolverOptions):
+            raise ValueError(f"solver must be an ncp.SolverOptions, got {type(self.solver).__name__}")
+        if isinstance(self.touch_tol, bool) or not isinstance(self.touch_tol, (int, float)) \
+                or not (math.isfinite(self.touch_tol) and self.touch_tol > 0):
+            raise ValueError(f"touch_tol must be a positive finite number, got {self.touch_tol!r}")
+        if isinstance(self.depth_tol, bool) or not isinstance(self.depth_tol, (int, float)) \
+                or not (0 < self.depth_tol < self.touch_tol):
+            raise ValueError(f"depth_tol must lie in (0, touch_tol = {self.touch_tol}), got {self.depth_tol!r}")
+
+
+@dataclass(frozen=True)
+class ClosestPointResult:
+    """Closest points of body 1 and body 2 (world frame).
+
+    a1, a2: closest points (both = a deepest common point x* when overlapping).
+    l1, l2: multipliers of eqs (28)-(31) with k1 on body 1: l1[k1] = l_k1 (a length), the other
+        entries dimensionless ratios lh / lh_k1; one entry per function of each shape (for a
+        single-function body 1, l1 = [l1] and l2 are those of eqs 15-18). When touching or
+        overlapping l1[k1] = 0 and the ratios come from the depth problem's multipliers.
+    k1: index of the active surface of body 1 used in (28).
+    distance: |a1 - a2| (0 when touching or overlapping).
+    normal: unit, world, from body 1 towards body 2, from gradients.
+    overlapping: interiors intersect; depth: -min_x max(f, g) >= 0 (algebraic, length units).
+    success/status/iterations/residual/message: the last solve (iterations summed over solves);
+        success is also True when the depth problem stopped short on a flat minimum but its
+        iterate is inside both bodies (the overlap is then certain and depth a lower bound;
+        status keeps the solver's, message says so).
+    form: which system gave the answer: "eq15-18" (body 1 one function), "eq15-18 swapped"
+        (body 2 one function, converted), "eq28-31" (both intersections: eqs 24-27 then a
+        polish with k1), "eq24-27" (the polish failed), "eq28-31 touching" (depth problem at
+        t* = 0, then polished), "depth" (overlapping, or touching unpolished), "failed".
+    """
+
+    a1: np.ndarray
+    a2: np.ndarray
+    l1: np.ndarray
+    l2: np.ndarray
+    k1: int
+    distance: float
+    normal: np.ndarray
+    overlapping: bool
+    depth: float
+    success: bool
+    status: Status
+    iterations: int
+    residual: float
+    message: str
+    form: str
+
+
+# --------------------------------------------------------------------------------------------
+# world-frame functions in scaled coordinates
+# --------------------------------------------------------------------------------------------
+class _Body:
+    """The functions of one posed shape in coordinates y = (x_world - o) / L."""
+
+    def __init__(self, shape, R, p, o, L):
+        self.shape = shape
+        self.functions = shape.functions
+        self.m = len(self.functions)
+        self.dim = shape.dim
+        self.R, self.p, self.L, self.o = R, p, L, o
+        self._b0 = R.T @ (o - p)        # body point of y = 0
+        self._B = L * R.T               # d x_body / d y
+        self._H = None
+        if self.m == 1 and self.functions[0].constant_hessian:
+            # quadrics and planes: the scaled world Hessian L R H R^T is fixed for the solve
+            H = self.functions[0].hessian(self._b0)
+            self._H = (L * (R @ H @ R.T))[None]
+
+    def to_body(self, y):
+        return self._b0 + self._B @ y
+
+    def world(self, y):
+        return self.o + self.L * y
+
+    def scaled(self, x_world):
+        return (x_world - self.o) / self.L
+
+    def eval(self, y, order=2):
+        """Scaled values (m,), gradients (m, dim), Hessians (m, dim, dim) at y."""
+        xb = self.to_body(y)
+        R, L, m, d = self.R, self.L, self.m, self.dim
+        if m == 1:
+            f = self.functions[0]
+            if order >= 2 and self._H is not None:
+                fv, fg = f.value_gradient(xb)
+                return np.array([fv / L]), (R @ fg)[None], self._H
+            if order >= 2:
+                fv, fg, fh = f.value_gradient_hessian(xb)
+                return np.array([fv / L]), (R @ fg)[None], (L * (R @ fh @ R.T))[None]
+            fv, fg = f.value_gradient(xb)
+            return np.array([fv / L]), (R @ fg)[None], None
+        v = np.empty(m)
+        G = np.empty((m, d))
+        H = np.empty((m, d, d)) if order >= 2 else None
+        for i, f in enumerate(self.functions):
+            if order >= 2:
+                fv, fg, fh = f.value_gradient_hessian(xb)
+                H[i] = L * (R @ fh @ R.T)
+            else:
+                fv, fg = f.value_gradient(xb)
+            v[i] = fv / L
+            G[i] = R @ fg
+        return v, G, H
+
+    def values(self, y):
+        xb = self.to_body(y)
+        return np.array([f.value(xb) for f in self.functions]) / self.L
+
+    @property
+    def plane(self):
+        """(unit world normal, scaled offset) if the body is one half-space, else None."""
+        if self.m != 1 or not isinstance(self.functions[0], (HalfSpace, HalfPlane)):
+            return None
+        n_b, d_b = self.functions[0].plane()
+        n = self.R @ n_b
+        return n, (d_b + float(n @ self.p) - float(n @ self.o)) / self.L
+
+    def linear_rows(self):
+        """(N, b) with the scaled functions N y - b, if every function is a half-space."""
+        if not all(isinstance(f, (HalfSpace, HalfPlane)) for f in self.functions):
+            return None
+        rows = [f.plane() for f in self.functions]
+        N = np.array([self.R @ n for n, _ in rows])
+        b = np.array([(d + float((self.R @ n) @ (self.p - self.o))) / self.L for n, d in rows])
+        return N, b
+
+    def support(self, direction):
+        """Scaled support point along a world direction, or None without a closed form."""
+        if not self.shape.bounded:
+            return None
+        try:
+            xb = self.shape.support(self.R.T @ direction)
+        except NotImplementedError:
+            return None
+        return (self.R @ xb + self.p - self.o) / self.L
+
+    def ray_exit(self, origin_y, target_y) -> float:
+        """Fraction s in [0, inf] of the segment origin -> target where the ray leaves the body."""
+        ob = self.to_body(origin_y)
+        ub = self._B @ (target_y - origin_y)
+        return float(self.shape.ray_exit(ob, ub))
+
+    def ray_origin(self, target_y, interior_y):
+        """A point strictly inside, near the target: the interior point for a bounded body; for
+        an unbounded one, Newton projection of the target onto the surface pushed one L inside
+        (exact for a half-space)."""
+        if self.shape.bounded:
+            return interior_y
+        y = np.array(target_y, dtype=float)
+        for _ in range(8):
+            v, G, _ = self.eval(y, order=1)
+            k = int(np.argmax(v))
+            if v[k] < -0.5:
+                return y
+            gg = float(G[k] @ G[k])
+            if gg == 0.0:
+                break
+            y = y - (v[k] + 1.0) * G[k] / gg
+        return y if float(np.max(self.values(y))) < 0.0 else interior_y
+
+
+def _check_pose(pose, dim, name):
+    try:
+        R, p = pose
+        R = np.asarray(R, dtype=float)
+        p = np.asarray(p, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (R ({dim},{dim}), p ({dim},)), got {pose!r}") from None
+    if R.shape != (dim, dim) or p.shape != (dim,):
+        raise ValueError(f"{name} must be a pair (R ({dim},{dim}), p ({dim},)) for {dim}D shapes, got "
+                         f"shapes {R.shape} and {p.shape}")
+    if not (np.isfinite(R).all() and np.isfinite(p).all()):
+        raise ValueError(f"{name} must be finite")
+    if np.max(np.abs(R.T @ R - np.eye(dim))) > ROTATION_TOL or _det(R) < 0.0:
+        raise ValueError(f"{name} rotation must be a proper rotation (orthonormal, det +1)")
+    return R, p
+
+
+def _det(R: np.ndarray) -> float:
+    r = R.ravel().tolist()
+    if len(r) == 4:
+        return r[0] * r[3] - r[1] * r[2]
+    return (r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
+            + r[2] * (r[3] * r[7] - r[4] * r[6]))
+
+
+def _check_shape(shape, name):
+    if isinstance(shape, Union):
+        raise ValueError(f"{name} is a Union: closest points are defined per convex part; "
+                         "call closest_points for each part of shape.parts")
+    if not isinstance(shape, (ConvexFunction, Intersection)):
+        raise ValueError(f"{name} must be a ConvexFunction or an Intersection, got {type(shape).__name__}")
+
+
+# --------------------------------------------------------------------------------------------
+# the three MCPs
+# --------------------------------------------------------------------------------------------
+def _weighted(w: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """sum_k w_k H_k."""
+    return w[0] * H[0] if len(w) == 1 else np.einsum("k,kij->ij", w, H)
+
+
+def _scaled_form(B1: _Body, B2: _Body, k1: int):
+    """Eqs (28)-(31) with the active surface k1 of body 1 (eqs 15-18 when body 1 is one
+    function): z = [a1, a2, l1 (m1, l1[k1] = l_k1), l2 (m2)].
+
+    With w = l1 but w[k1] = 1, c = sum_i w_i grad f_i(a1) and Hc = sum_i w_i Hess f_i(a1):
+        r28 = a1 - a2 + l_k1 c,          r29 = c + sum_j l_j grad g_j(a2),
+        r30 = -f_i(a1),                  r31 = -g_j(a2);
+    d r28 = [I + l_k1 Hc, -I, c (l_k1), l_k1 grad f_i (l_i)], d r29 = [Hc, sum l_j Hg_j,
+    grad f_i (l_i), grad g_j (l_j)].
+    """
+    d, m1, m2 = B1.dim, B1.m, B2.m
+    n = 2 * d + m1 + m2
+    i1, i2, j1, j2 = slice(0, d), slice(d, 2 * d), slice(2 * d, 2 * d + m1), slice(2 * d + m1, n)
+    col_k1 = 2 * d + k1
+    others = [2 * d + i for i in range(m1) if i != k1]
+    other_idx = [i for i in range(m1) if i != k1]
+    eye = np.eye(d)
+    cache = {}
+
+    def evaluate(z):
+        key = z.tobytes()
+        if cache.get("key") != key:
+            cache["key"] = key
+            cache["1"] = B1.eval(z[i1])
+            cache["2"] = B2.eval(z[i2])
+        return cache["1"], cache["2"]
+
+    def weights(z):
+        w = z[j1].copy()
+        w[k1] = 1.0
+        return w
+
+    def fun(z):
+        (fv, fG, _), (gv, gG, _) = evaluate(z)
+        w = weights(z)
+        c = w @ fG
+        r = np.empty(n)
+        r[i1] = z[i1] - z[i2] + z[col_k1] * c
+        r[i2] = c + z[j2] @ gG
+        r[j1] = -fv
+        r[j2] = -gv
+        return r
+
+    def jac(z):
+        (fv, fG, fH), (gv, gG, gH) = evaluate(z)
+        w = weights(z)
+        lk = z[col_k1]
+        c = w @ fG
+        Hc = _weighted(w, fH)
+        J = np.zeros((n, n))
+        J[i1, i1] = eye + lk * Hc
+        J[i1, i2] = -eye
+        J[i1, col_k1] = c
+        J[i2, i1] = Hc
+        J[i2, i2] = _weighted(z[j2], gH)
+        J[i2, j2] = gG.T
+        if other_idx:
+            J[i1, others] = lk * fG[other_idx].T
+            J[i2, others] = fG[other_idx].T
+        J[j1, i1] = -fG
+        J[j2, i2] = -gG
+        return J
+
+    lower = np.concatenate([np.full(2 * d, -np.inf), np.zeros(m1 + m2)])
+    return fun, jac, lower, np.full(n, np.inf)
+
+
+def _hat_form(B1: _Body, B2: _Body):
+    """Eqs (24)-(27): z = [a1, a2, lh1 (m1), lh2 (m2)]."""
+    d, m1, m2 = B1.dim, B1.m, B2.m
+    n = 2 * d + m1 + m2
+    i1, i2, j1, j2 = slice(0, d), slice(d, 2 * d), slice(2 * d, 2 * d + m1), slice(2 * d + m1, n)
+    eye = np.eye(d)
+    cache = {}
+
+    def evaluate(z):
+        key = z.tobytes()
+        if cache.get("key") != key:
+            cache["key"] = key
+            cache["1"] = B1.eval(z[i1])
+            cache["2"] = B2.eval(z[i2])
+        return cache["1"], cache["2"]
+
+    def fun(z):
+        (fv, fG, _), (gv, gG, _) = evaluate(z)
+        a1, a2 = z[i1], z[i2]
+        r = np.empty(n)
+        r[i1] = a1 - a2 + z[j1] @ fG
+        r[i2] = a2 - a1 + z[j2] @ gG
+        r[j1] = -fv
+        r[j2] = -gv
+        return r
+
+    def jac(z):
+        (fv, fG, fH), (gv, gG, gH) = evaluate(z)
+        J = np.zeros((n, n))
+        J[i1, i1] = eye + _weighted(z[j1], fH)
+        J[i1, i2] = -eye
+        J[i1, j1] = fG.T
+        J[i2, i1] = -eye
+        J[i2, i2] = eye + _weighted(z[j2], gH)
+        J[i2, j2] = gG.T
+        J[j1, i1] = -fG
+        J[j2, i2] = -gG
+        return J
+
+    lower = np.concatenate([np.full(2 * d, -np.inf), np.zeros(m1 + m2)])
+    return fun, jac, lower, np.full(n, np.inf)
+
+
+def _depth_form(B1: _Body, B2: _Body):
+    """min t s.t. h_k(y) <= t: z = [y (dim), t, mu (m1 + m2)]."""
+    d, m1, m2 = B1.dim, B1.m, B2.m
+    K = m1 + m2
+    n = d + 1 + K
+    iy, it, im = slice(0, d), d, slice(d + 1, n)
+    cache = {}
+
+    def evaluate(z):
+        key = z.tobytes()
+        if cache.get("key") != key:
+            cache["key"] = key
+            v1, G1, H1 = B1.eval(z[iy])
+            v2, G2, H2 = B2.eval(z[iy])
+            cache["v"] = (np.concatenate([v1, v2]), np.vstack([G1, G2]), np.concatenate([H1, H2]))
+        return cache["v"]
+
+    def fun(z):
+        v, G, _ = evaluate(z)
+        mu = z[im]
+        r = np.empty(n)
+        r[iy] = mu @ G
+        r[it] = 1.0 - mu.sum()
+        r[im] = z[it] - v
+        return r
+
+    def jac(z):
+        v, G, H = evaluate(z)
+        J = np.zeros((n, n))
+        J[iy, iy] = _weighted(z[im], H)
+        J[iy, im] = G.T
+        J[it, im] = -1.0
+        J[im, iy] = -G
+        J[im, it] = 1.0
+        return J
+
+    lower = np.concatenate([np.full(d + 1, -np.inf), np.zeros(K)])
+    return fun, jac, lower, np.full(n, np.inf)
+
+
+def _start_multipliers(columns: np.ndarray, rhs: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """l >= 0 with sum_j l_j columns_j ~ rhs over the members near their surface."""
+    m = len(values)
+    near = np.flatnonzero(values >= float(np.max(values)) - NEAR_ACTIVE)
+    lam = np.zeros(m)
+    if m == 1:
+        cc = float(columns[0] @ columns[0])
+        lam[0] = max(float(columns[0] @ rhs) / cc, 0.0) if cc > 0 else 0.0
+    else:
+        sol, _ = nnls(columns[near].T, rhs)
+        lam[near] = sol
+    if not np.any(lam > 0):
+        k = int(np.argmax(values))
+        lam[k] = float(np.linalg.norm(rhs)) / max(float(np.linalg.norm(columns[k])), 1e-300)
+    return lam
+
+
+@dataclass(frozen=True)
+class _LpOutcome:
+    """The fields of an ncp.McpResult that the driver reads, for the linear-program path."""
+
+    x: np.ndarray
+    status: Status
+    iterations: int
+    residual: float
+    message: str
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.CONVERGED
+
+
+# --------------------------------------------------------------------------------------------
+# the driver
+# --------------------------------------------------------------------------------------------
+_DEFAULT_OPTIONS = ClosestPointOptions()
+
+
+def closest_points(shape1, pose1, shape2, pose2, options: ClosestPointOptions | None = None) -> ClosestPointResult:
+    """Closest points of shape1 posed by pose1 = (R1, p1) and shape2 posed by pose2 (body -> world).
+
+    shapes: ConvexFunction or Intersection of the same dim, not both unbounded. Never raises for
+    a failed solve (see result.success / status); ValueError for malformed input.
+    """
+    options = _DEFAULT_OPTIONS if options is None else options
+    if not isinstance(options, ClosestPointOptions):
+        raise ValueError(f"options must be a ClosestPointOptions, got {type(options).__name__}")
+    _check_shape(shape1, "shape1")
+    _check_shape(shape2, "shape2")
+    if shape1.dim != shape2.dim:
+        raise ValueError(f"both shapes must have the same dim, got {shape1.dim} and {shape2.dim}")
+    dim = shape1.dim
+    R1, p1 = _check_pose(pose1, dim, "pose1")
+    R2, p2 = _check_pose(pose2, dim, "pose2")
+    if not (shape1.bounded or shape2.bounded):
+        raise ValueError("at least one of the two shapes must be bounded: the distance between two "
+                         "unbounded shapes (half-spaces, infinite cylinders, fingertips) is not "
+                         "supported")
+
+    c1 = R1 @ shape1.interior_point + p1
+    c2 = R2 @ shape2.interior_point + p2
+    L = min(s for s in (shape1.length_scale, shape2.length_scale) if math.isfinite(s))
+    o = 0.5 * (c1 + c2) if shape1.bounded and shape2.bounded else (c1 if shape1.bounded else c2)
+    B1, B2 = _Body(shape1, R1, p1, o, L), _Body(shape2, R2, p2, o, L)
+    return _Solver(B1, B2, B1.scaled(c1), B2.scaled(c2), options).run()
+
+
+class _Solver:
+    def __init__(self, B1, B2, c1, c2, options):
+        self.B1, self.B2, self.c1, self.c2 = B1, B2, c1, c2
+        self.opts = options
+        self.tol = options.touch_tol
+        self.iterations = 0
+
+    # -- start -------------------------------------------------------------------------------
+    def rays(self, target1, target2):
+        """Ray-exit points a1, a2 and whether the bodies share a stretch of the segment."""
+        o1 = self.B1.ray_origin(target1, self.c1)
+        o2 = self.B2.ray_origin(target2, self.c2)
+        if float(np.max(self.B2.values(o1))) < 0.0 or float(np.max(self.B1.values(o2))) < 0.0:
+            return o1, o2, True, 0.5 * (o1 + o2)
+        s1 = self.B1.ray_exit(o1, o2)
+        s2 = self.B2.ray_exit(o2, o1)
+        overlap = s1 + s2 > 1.0 + self.tol
+        mid = o1 + 0.5 * (s1 + 1.0 - s2) * (o2 - o1)
+        a1 = o1 + min(s1, 1.0) * (o2 - o1)
+        a2 = o2 + min(s2, 1.0) * (o1 - o2)
+        return a1, a2, overlap, mid
+
+    def supports(self):
+        """Start from support points: exact against a half-space; else a few fixed-point steps
+        d <- s2(-d) - s1(d). None if unavailable or the bodies are not shown apart along d."""
+        B1, B2 = self.B1, self.B2
+        for P, Q, first in ((B1, B2, True), (B2, B1, False)):
+            plane = P.plane
+            if plane is None:
+                continue
+            n, offset = plane
+            aQ = Q.support(-n)
+            if aQ is None:
+                return None
+            gap = float(n @ aQ) - offset
+            aP = aQ - gap * n
+            if gap < -self.tol:
+                return aQ, aQ, True, aQ     # the deepest point of Q below the plane
+            return (aP, aQ, False, None) if first else (aQ, aP, False, None)
+        d = self.c2 - self.c1
+        if not np.any(d):
+            return None
+        for _ in range(SUPPORT_STEPS):
+            a1, a2 = B1.support(d), B2.support(-d)
+            if a1 is None or a2 is None:
+                return None
+            sep = a2 - a1
+            along = float(sep @ d)
+            if along <= 0.0:
+                return None       # d does not separate: let the rays decide
+            if along * along >= (1.0 - 1e-15) * float(sep @ sep) * float(d @ d):
+                break             # the direction is a fixed point (two spheres: at once)
+            d = sep
+        return a1, a2, False, None
+
+    # -- main --------------------------------------------------------------------------------
+    def run(self) -> ClosestPointResult:
+        start = self.supports()
+        if start is None or (not start[2] and (self.B1.m > 1 or self.B2.m > 1)
+                             and self.B1.plane is None and self.B2.plane is None):
+            # Support points of a polytope are vertices, a poor start for a face contact: keep
+            # whichever of the two surface pairs is closer (both bound the distance from above).
+            rays = self.rays(self.c2, self.c1)
+            if start is None or rays[2] or np.linalg.norm(rays[0] - rays[1]) < np.linalg.norm(start[0] - start[1]):
+                start = rays
+        a1, a2, overlap, mid = start
+        if overlap:
+            return self.depth(mid)
+        res = self.kkt(a1, a2)
+        if res is not None:
+            return res
+        # The KKT solve failed or ended at a1 = a2 with a1 inside: classify by the depth problem.
+        return self.depth(0.5 * (a1 + a2))
+
+    def solve(self, fun, jac, z0, lo, hi):
+        sol = solve_mcp(fun, jac, z0, lo, hi, self.opts.solver)
+        self.iterations += sol.iterations
+        self.last = sol
+        return sol
+
+    def scaled(self, a1, a2, l1, l2, k1, form):
+        """Solve eqs (28)-(31) with body 1's surface k1 from a start: (result, why) with result
+        None and why "failed" or "inside" (a root with a1 = a2 inside body 1: overlapping)."""
+        B1, B2 = self.B1, self.B2
+        dim = B1.dim
+        fun, jac, lo, hi = _scaled_form(B1, B2, k1)
+        sol = self.solve(fun, jac, np.concatenate([a1, a2, l1, l2]), lo, hi)
+        if not sol.success:
+            return None, "failed"
+        z = sol.x
+        a1, a2 = z[:dim], z[dim:2 * dim]
+        l1, l2 = z[2 * dim:2 * dim + B1.m].copy(), z[2 * dim + B1.m:].copy()
+        if float(np.linalg.norm(a1 - a2)) <= self.tol and -B1.values(a1)[k1] > self.tol:
+            return None, "inside"     # a spurious root with a1 = a2 inside body 1: overlapping
+        weights = l1.copy()
+        weights[k1] = 1.0
+        l1[k1] *= B1.L
+        return self.result(a1, a2, l1, l2, k1, weights, overlapping=False, depth=0.0, form=form,
+                           sol=sol), "ok"
+
+    def kkt(self, a1, a2):
+        B1, B2 = self.B1, self.B2
+        dim = B1.dim
+        if B1.m == 1:
+            v1, G1, _ = B1.eval(a1, order=1)
+            v2, G2, _ = B2.eval(a2, order=1)
+            g = G1[0]
+            gg = float(g @ g)
+            lk = max(float(g @ (a2 - a1)), 0.0) / gg if gg > 0.0 else 0.0
+            return self.scaled(a1, a2, np.array([lk]), _start_multipliers(G2, -g, v2), 0, "eq15-18")[0]
+        if B2.m == 1:
+            # k1 is not known on body 1: solve with body 2 as the single-function body F of
+            # eqs (15)-(18) and convert through the hat multipliers: lh_F = l_F, lh_i = l_F l_i.
+            v2, G2, _ = B2.eval(a2, order=1)
+            v1, G1, _ = B1.eval(a1, order=1)
+            g = G2[0]
+            gg = float(g @ g)
+            lk = max(float(g @ (a1 - a2)), 0.0) / gg if gg > 0.0 else 0.0
+            fun, jac, lo, hi = _scaled_form(B2, B1, 0)
+            sol = self.solve(fun, jac, np.concatenate([a2, a1, [lk], _start_multipliers(G1, -g, v1)]), lo, hi)
+            if not sol.success:
+                return None
+            z = sol.x
+            aF, aG, lF, lG = z[:dim], z[dim:2 * dim], z[2 * dim], z[2 * dim + 1:]
+            if float(np.linalg.norm(aF - aG)) <= self.tol and -B2.values(aF)[0] > self.tol:
+                return None
+            k1 = int(np.argmax(lG))
+            ratio1 = lG / lG[k1]
+            l1 = ratio1.copy()
+            l1[k1] = lF * lG[k1] * B2.L
+            return self.result(aG, aF, l1, np.array([1.0 / lG[k1]]), k1, ratio1, overlapping=False,
+                               depth=0.0, form="eq15-18 swapped", sol=sol)
+        # Both intersections: eqs (24)-(27) need no k1; then k1 = the largest multiplier of
+        # body 1 and a polish with eqs (28)-(31), whose ratios stay accurate at small distances
+        # (in (24)-(27) every multiplier is proportional to the distance).
+        v1, G1, _ = B1.eval(a1, order=1)
+        v2, G2, _ = B2.eval(a2, order=1)
+        fun, jac, lo, hi = _hat_form(B1, B2)
+        z0 = np.concatenate([a1, a2, _start_multipliers(G1, a2 - a1, v1), _start_multipliers(G2, a1 - a2, v2)])
+        sol = self.solve(fun, jac, z0, lo, hi)
+        if not sol.success:
+            return None
+        z = sol.x
+        a1, a2 = z[:dim], z[dim:2 * dim]
+        lh1, lh2 = z[2 * dim:2 * dim + B1.m], z[2 * dim + B1.m:]
+        if float(np.linalg.norm(a1 - a2)) <= self.tol:
+            return None               # every common point solves (24)-(27): classify by depth
+        k1 = int(np.argmax(lh1))
+        l1 = lh1 / lh1[k1]
+        l1[k1] = lh1[k1]
+        polished, why = self.scaled(a1, a2, l1, lh2 / lh1[k1], k1, "eq28-31")
+        if polished is not None:
+            return polished
+        if why == "inside" or float(np.linalg.norm(a1 - a2)) <= SMALL_HAT_DISTANCE:
+            # (24)-(27) are satisfied to the tolerance by common points with tiny multipliers,
+            # so a small distance from them alone is not trusted: classify by depth.
+            return None
+        ratio1 = lh1 / lh1[k1]
+        l1 = ratio1.copy()
+        l1[k1] = lh1[k1] * B1.L
+        return self.result(a1, a2, l1, lh2 / lh1[k1], k1, ratio1, overlapping=False, depth=0.0,
+                           form="eq24-27", sol=sol)
+
+    def depth_start(self, y0):
+        """Start of the depth problem. If the minimiser c of a single-function body (its centre,
+        where grad f = 0) lies where the other body's functions are <= f(c), then c is the exact
+        answer: max(f, g) >= f >= f(c) everywhere. That case (a small body well inside a large
+        one) is also where the minimum can be flat (|x|^4 at the centre of a superellipse) and
+        Newton would only be linear, so it is recognised here."""
+        B1, B2 = self.B1, self.B2
+        for B, other, c, offset in ((B1, B2, self.c1, 0), (B2, B1, self.c2, B1.m)):
+            if B.m != 1:
+                continue
+            v, G, _ = B.eval(c, order=1)
+            if float(np.abs(G).max()) > 1e-12 or float(np.max(other.values(c))) > v[0]:
+                continue
+            mu = np.zeros(B1.m + B2.m)
+            mu[offset] = 1.0
+            return np.concatenate([c, [v[0]], mu])
+        v1, v2 = B1.values(y0), B2.values(y0)
+        k1, k2 = int(np.argmax(v1)), int(np.argmax(v2))
+        mu = np.zeros(B1.m + B2.m)
+        mu[k1] = mu[B1.m + k2] = 0.5
+        return np.concatenate([y0, [max(float(v1[k1]), float(v2[k2]))], mu])
+
+    def depth_lp(self, rows1, rows2):
+        """Two polyhedra: min t s.t. N y - b <= t is a linear program; its optimum is often
+        degenerate (an edge on a vertex), where Newton on the KKT system stalls, so HiGHS."""
+        N = np.vstack([rows1[0], rows2[0]])
+        b = np.concatenate([rows1[1], rows2[1]])
+        dim = N.shape[1]
+        res = linprog(np.r_[np.zeros(dim), 1.0], A_ub=np.c_[N, -np.ones(len(b))], b_ub=b,
+                      bounds=[(None, None)] * (dim + 1), method="highs")
+        ok = res.status == 0
+        x = res.x if ok else np.full(dim + 1 + len(b), np.nan)
+        mu = -res.ineqlin.marginals if ok else np.full(len(b), np.nan)
+        outcome = _LpOutcome(np.concatenate([x[:dim + 1], mu]),
+                             Status.CONVERGED if ok else Status.SINGULAR, int(getattr(res, "nit", 0)),
+                             0.0 if ok else math.inf, f"linprog (HiGHS): {res.message}")
+        return outcome
+
+    def depth(self, y0):
+        B1, B2 = self.B1, self.B2
+        dim = B1.dim
+        rows1, rows2 = B1.linear_rows(), B2.linear_rows()
+        if rows1 is not None and rows2 is not None:
+            sol = self.depth_lp(rows1, rows2)
+        else:
+            fun, jac, lo, hi = _depth_form(B1, B2)
+            solver = self.opts.solver
+            if solver.tol < self.opts.depth_tol:
+                solver = replace(solver, tol=self.opts.depth_tol)
+            sol = solve_mcp(fun, jac, self.depth_start(y0), lo, hi, solver)
+        self.iterations += sol.iterations
+        self.last = sol
+        if not sol.success and not np.all(np.isfinite(sol.x)):
+            return self.failure(y0, y0, "the depth linear program failed")
+        y, t, mu = sol.x[:dim], float(sol.x[dim]), sol.x[dim + 1:]
+        mu1, mu2 = mu[:B1.m], mu[B1.m:]
+        certified = False
+        if not sol.success:
+            t_y = max(float(np.max(B1.values(y))), float(np.max(B2.values(y))))
+            if not t_y < -self.tol:
+                return self.failure(y, y, "neither the KKT solve nor the depth problem converged")
+            # y is strictly inside both bodies: the overlap is certain and -max(f, g)(y) is a
+            # lower bound of the depth, short of optimal by about the residual (flat minimum).
+            t, certified = t_y, True
+        if t > self.tol:
+            # Apart after all: restart the KKT solve from rays aimed at the separating point x*.
+            a1, a2, overlap, _ = self.rays(y, y)
+            res = self.kkt(a1, a2) if not overlap else None
+            if res is not None:
+                return res
+            return self.failure(a1, a2, "the KKT solve failed for bodies that the depth problem "
+                                        f"finds apart (t* = {t * B1.L:.3g})")
+        # Touching or overlapping: multipliers of (28)-(31) at a1 = a2 with l_k1 = 0, from
+        # sum mu_i grad f_i = -sum mu_j grad g_j of the depth problem.
+        if np.any(mu1 > 0):
+            k1 = int(np.argmax(mu1))
+            ratio1 = mu1 / mu1[k1]
+            l2 = mu2 / mu1[k1]
+        else:
+            k1 = int(np.argmax(B1.values(y)))
+            ratio1 = np.zeros(B1.m)
+            ratio1[k1] = 1.0
+            l2 = np.zeros(B2.m)
+        l1 = ratio1.copy()
+        l1[k1] = 0.0
+        overlapping = t < -self.tol
+        if not overlapping and np.any(mu1 > 0):
+            # Touching: eqs (28)-(31) are regular there (Prop. 4.3); polish a1 = a2 and the ratios.
+            polished, _ = self.scaled(y, y, l1, l2, k1, "eq28-31 touching")
+            if polished is not None and polished.distance <= self.tol * B1.L:
+                return polished
+        return self.result(y, y, l1, l2, k1, ratio1 if np.any(mu1 > 0) else None,
+                           overlapping=overlapping, depth=max(-t, 0.0) * B1.L if overlapping else 0.0,
+                           form="depth", sol=sol, mu2=mu2, certified=certified)
+
+    # -- output ------------------------------------------------------------------------------
+    def normal(self, a1, weights1, mu2=None):
+        B1, B2 = self.B1, self.B2
+        n = None
+        if weights1 is not None:
+            _, G1, _ = B1.eval(a1, order=1)
+            n = weights1 @ G1
+        if (n is None or not np.any(n)) and mu2 is not None and np.any(mu2 > 0):
+            _, G2, _ = B2.eval(a1, order=1)
+            n = -(mu2 @ G2)
+        if n is None or not np.any(n):
+            n = self.c2 - self.c1
+        if not np.any(n):
+            n = np.eye(B1.dim)[0]
+        return n / np.linalg.norm(n)
+
+    def result(self, a1, a2, l1, l2, k1, weights1, overlapping, depth, form, sol, mu2=None,
+               certified=False):
+        B1 = self.B1
+        w1, w2 = B1.world(a1), B1.world(a2)
+        dist = 0.0 if form == "depth" else float(np.linalg.norm(w1 - w2))
+        message = sol.message
+        if certified:
+            message = ("Overlap certified by a common interior point; the depth problem stopped "
+                       f"short of optimal (flat minimum), so depth is a lower bound. {sol.message}")
+        return ClosestPointResult(
+            a1=w1, a2=w2, l1=np.asarray(l1, dtype=float), l2=np.asarray(l2, dtype=float), k1=int(k1),
+            distance=dist, normal=self.normal(a1, weights1, mu2), overlapping=bool(overlapping),
+            depth=float(depth), success=sol.success or certified, status=sol.status,
+            iterations=self.iterations, residual=float(sol.residual), message=message, form=form)
+
+    def failure(self, a1, a2, why):
+        sol = self.last
+        B1 = self.B1
+        w1, w2 = B1.world(a1), B1.world(a2)
+        return ClosestPointResult(
+            a1=w1, a2=w2, l1=np.full(B1.m, np.nan), l2=np.full(self.B2.m, np.nan), k1=0,
+            distance=float(np.linalg.norm(w1 - w2)), normal=np.full(B1.dim, np.nan),
+            overlapping=False, depth=float("nan"), success=False, status=sol.status,
+            iterations=self.iterations, residual=float(sol.residual),
+            message=f"{why}; last solver message: {sol.message}", form="failed")
