@@ -43,11 +43,14 @@ class StepperOptions:
     """contact_tolerance [m]: allowed penetration and the broadphase's extra margin (1e-9..1e-4).
     solver: options of the MCP solver (natural-residual tolerance, iterations).
     max_halvings: retry policy, how many times h may be halved (up to 2**max_halvings substeps).
+    retry_iterations_factor: substeps of a retried step get this many times the solver's
+        max_iterations (hard steps converge slowly rather than not at all).
     check_penetration_at_start: refuse worlds whose bodies overlap when the stepper is built.
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
     max_halvings: int = 4
+    retry_iterations_factor: int = 4
     check_penetration_at_start: bool = True
 
     def __post_init__(self):
@@ -55,6 +58,8 @@ class StepperOptions:
             raise ValueError(f"contact_tolerance must be a positive length, got {self.contact_tolerance}")
         if not (isinstance(self.max_halvings, int) and 0 <= self.max_halvings <= 12):
             raise ValueError(f"max_halvings must be an integer in 0..12, got {self.max_halvings}")
+        if not (isinstance(self.retry_iterations_factor, int) and self.retry_iterations_factor >= 1):
+            raise ValueError(f"retry_iterations_factor must be an integer >= 1, got {self.retry_iterations_factor}")
 
 
 @dataclass(frozen=True)
@@ -119,12 +124,13 @@ class ImplicitContactStepper:
 
     world: a dartpy.simulation.World; the stepper finds shapes attached with ``ic.attach`` and
     DART primitive ShapeNodes with a collision aspect.
-    on_failure: "raise" (default) raises StepFailure; "warn" warns and returns a failed report;
-    "retry" takes 2, 4, ... substeps of halved h (at most 2**max_halvings) and raises if those fail.
+    on_failure: "retry" (default) takes 2, 4, ... substeps of halved h (at most 2**max_halvings;
+    report.substeps says how many) and raises StepFailure if those fail too; "raise" raises at
+    once; "warn" warns and returns a failed report.
     In every case a failed step leaves the world exactly as it was.
     """
 
-    def __init__(self, world, on_failure: str = "raise", options: StepperOptions | None = None):
+    def __init__(self, world, on_failure: str = "retry", options: StepperOptions | None = None):
         if on_failure not in POLICIES:
             raise ValueError(f"on_failure must be one of {POLICIES}, got {on_failure!r}")
         self.world = world
@@ -140,6 +146,7 @@ class ImplicitContactStepper:
         self._pair_friction = {}
         self._last = {}            # pair key -> dict of the last solution (warm start)
         self._layout_cache = {}
+        self._retrying = False
         self._check_state_finite()
         if self.options.check_penetration_at_start:
             self._check_initial_overlap()
@@ -160,6 +167,7 @@ class ImplicitContactStepper:
         self._check_state_finite()
         snap = adapter.snapshot(self.world)
         last_before = dict(self._last)
+        self._retrying = False
         report = self._substeps(h, 1)
         if report.success:
             adapter.finish_step(self.world, h)
@@ -167,6 +175,7 @@ class ImplicitContactStepper:
         adapter.restore(self.world, snap)
         self._last = last_before
         if self.on_failure == "retry":
+            self._retrying = True
             for k in range(1, self.options.max_halvings + 1):
                 n = 2 ** k
                 report = self._substeps(h / n, n)
@@ -356,6 +365,10 @@ class ImplicitContactStepper:
         ~tol h per step) instead of being exact. One more Newton step from a point inside the
         quadratic basin makes it round-off exact."""
         opts = self.options.solver
+        if self._retrying:
+            # substeps of a retried step are the hard ones (measured: a box slapping flat onto the
+            # ground converges in ~100 LM iterations); give them a larger budget
+            opts = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
         result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options=opts)
         if result.success and result.residual > 1e-3 * opts.tol:
             polish = ncp.solve_mcp(problem.fun, problem.jac, result.x, problem.lower, problem.upper,
@@ -450,8 +463,11 @@ class ImplicitContactStepper:
                                      second.piece, _pose_dim(poses_now[second.body], d))
                 a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
                 normal = np.asarray(res.normal, float)
-                P1 = problem.bodies[spec.obj1.body].pose(problem.body_velocity(z, spec.obj1.body))
-                P2 = problem.bodies[spec.obj2.body].pose(problem.body_velocity(z, spec.obj2.body))
+                # poses at l (zero velocity), where the closest points were computed
+                P1, P2 = (problem.bodies[o.body].pose(np.zeros(problem.bodies[o.body].ndof))
+                          for o in (spec.obj1, spec.obj2))
+                if res.distance <= self.options.contact_tolerance:
+                    a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal, self.options.contact_tolerance)
                 l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
                 spec.k1 = k1
                 p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
@@ -655,3 +671,23 @@ def _stuck_sliding(problem, x) -> list:
         if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
             out.append(k)
     return out
+
+
+def _central_touch_point(spec, P1, P2, a, normal, tol):
+    """Warm start of a touching pair: the touching point nearest the bodies' centres.
+
+    Flat on flat (a box on the ground) touches along a whole face and the static solver returns
+    any point of it, often a corner; Newton then has to walk the point across the face through a
+    nearly singular system. The point where the dynamics will put it is near the projection of the
+    moving body's centre onto the tangent plane, so that projection is used when it lies on both
+    surfaces (to tol); otherwise the static solution is kept."""
+    centres = [P.p for P, body in ((P2, spec.obj2), (P1, spec.obj1)) if not body.fixed_halfspace]
+    if len(centres) == 2:
+        centres.append(0.5 * (centres[0] + centres[1]))
+    for c in centres:
+        x = c - ((c - a) @ normal) * normal
+        f1, *_ = fm._eval_functions(spec.obj1.functions, P1, x, jac=False)
+        f2, *_ = fm._eval_functions(spec.obj2.functions, P2, x, jac=False)
+        if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
+            return x
+    return a
