@@ -112,7 +112,9 @@ def contact_series(traj: Trajectory, body_name: str) -> ContactSeries:
     return ContactSeries(np.array(t), np.array(n), np.array(f), np.array(ft), np.array(s))
 
 
-ROLL_SLIP = 1e-6  # [m/s] tangential slip below which a contact counts as rolling
+ROLL_SLIP = 1e-6    # [m/s] tangential slip below which a contact counts as rolling
+FORCE_ZERO = 1e-8   # [N] normal forces below this are numerical zeros: the solver's tolerance on
+                    # scaled impulses (1e-10 h m g / h) is ~1e-9 N here
 
 
 def events(traj: Trajectory) -> dict:
@@ -120,9 +122,9 @@ def events(traj: Trajectory) -> dict:
     c1, c2 = contact_series(traj, "sphere_r10"), contact_series(traj, "sphere_r9")
     out = {}
     for name, c in (("contact1_lost", c1), ("contact2_lost", c2)):
-        on = np.nonzero(c.normal > 0)[0]
+        on = np.nonzero(c.normal > FORCE_ZERO)[0]
         out[name] = float(c.t[on[-1]]) if len(on) else float("nan")
-    sliding = np.nonzero((c2.normal > 0) & (c2.slip > ROLL_SLIP))[0]
+    sliding = np.nonzero((c2.normal > FORCE_ZERO) & (c2.slip > ROLL_SLIP))[0]
     out["contact2_slides"] = float(c2.t[sliding[0]]) if len(sliding) else float("nan")
     return out
 
