@@ -9,9 +9,9 @@ multibody systems with intermittent contact", IJRR 2013.
     report = stepper.step()
 """
 from . import shapes
-from .params import Friction
+from .params import Compliance, Friction
 from .dart_adapter import attach
 from .stepper import ImplicitContactStepper, StepperOptions, StepReport, ContactReport, StepFailure
 
-__all__ = ["shapes", "Friction", "attach", "ImplicitContactStepper", "StepperOptions", "StepReport",
+__all__ = ["shapes", "Compliance", "Friction", "attach", "ImplicitContactStepper", "StepperOptions", "StepReport",
            "ContactReport", "StepFailure"]

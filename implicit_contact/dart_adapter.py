@@ -28,7 +28,7 @@ import dartpy as dart
 import numpy as np
 
 from . import shapes as shp
-from .params import Friction
+from .params import Compliance, Friction
 
 SHAPE_NODE_PREFIX = "implicit_contact:"
 DEFAULT_DART_MU = 1.0  # DART's DynamicsAspect default friction coefficient
@@ -52,6 +52,8 @@ def attach(body_node, shape, friction: Friction | None = None, compliance=None, 
     friction = Friction() if friction is None else friction
     if not isinstance(friction, Friction):
         raise ValueError(f"friction must be an ic.Friction, got {type(friction).__name__}")
+    if compliance is not None and not isinstance(compliance, Compliance):
+        raise ValueError(f"compliance must be an ic.Compliance or None, got {type(compliance).__name__}")
     record = {"shape": shape.to_dict(), "friction": friction.to_dict()}
     if compliance is not None:
         record["compliance"] = compliance.to_dict()
@@ -279,8 +281,9 @@ def _shapes_of(node, planar: bool) -> list:
         name = sn.getName()
         if name.startswith(SHAPE_NODE_PREFIX):
             rec = _parse_record(name)
+            compliance = Compliance.from_dict(rec["compliance"]) if "compliance" in rec else None
             found.append(ContactShape(shp.shape_from_dict(rec["shape"]), Friction(**rec["friction"]),
-                                      rec.get("compliance"), rec.get("name", name)))
+                                      compliance, rec.get("name", name)))
         elif sn.hasCollisionAspect():
             R, c = _placement(sn)
             shape = implicit_from_dart_shape(sn.getShape(), R, c, planar)
