@@ -59,11 +59,18 @@ impulses times velocities): a natural-residual tolerance then means about the sa
 Dynamics rows of a skeleton ([GI] eq 21, first line, with DART's M, bias and applied forces at l):
 
     (M (v+ - v) - h (tau + tau_ext - c(q, v)) - sum_contacts J^T P) / diag(M) = 0
+
+Implementation. fun and jac run several times per step and bound the simulator's speed, so the
+per-pair code avoids numpy calls on 3-vectors (see "Speed" below): rows on plain floats, common
+primitives evaluated inline, the Jacobian as a few (coefficients x basis) products per pair
+(_PairPlan), and jac reusing the rows of the fun call at the same point (StepProblem._pair).
+comparisons/bench_assembly.py measures it; tests/test_formulation.py checks J by differences.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 import math
+import weakref
 
 import numpy as np
 
@@ -76,6 +83,13 @@ FREE, PLANAR, FIXED = "free", "planar", "fixed"
 # ---------------------------------------------------------------------------------------------
 # small geometry helpers, 2D and 3D alike
 # ---------------------------------------------------------------------------------------------
+# Speed. Every quantity of a pair is a 2- or 3-vector or a small matrix, where a numpy call costs
+# about 1 us of overhead and a float operation on plain Python numbers about 40 ns (np.cross of
+# two 3-vectors costs ~20 us). So the hot path (StepProblem._pair) works on tuples of floats for
+# vectors and tuples of rows for matrices, through the kits _V3 / _V2 below, and uses numpy only
+# for the chain rule of the Jacobian, where one call handles a whole row block. The numpy
+# helpers right below (_skew, _X, _W, Pose, _eval_functions, ...) serve the public API and
+# reports, not the hot path.
 def _skew(x):
     return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
 
@@ -94,21 +108,235 @@ def _W(w):
     return w[0] * np.array([[0.0, -1.0], [1.0, 0.0]])
 
 
-def so3_exp(phi):
-    th = math.sqrt(float(phi @ phi))
-    K = _skew(phi)
+def _so3_coefficients(th2):
+    """(a, b, c) of exp([phi]x) = I + a K + b K^2 and J_l(phi) = I + b K + c K^2, th2 = |phi|^2."""
+    th = math.sqrt(th2)
     if th < 1e-6:
-        return np.eye(3) + K + 0.5 * (K @ K)
-    return np.eye(3) + (math.sin(th) / th) * K + ((1.0 - math.cos(th)) / th**2) * (K @ K)
+        return 1.0, 0.5, 1.0 / 6.0
+    s = math.sin(th)
+    b = (1.0 - math.cos(th)) / th2
+    return s / th, b, (th - s) / (th2 * th)
+
+
+def _i_plus_k(f0, f1, f2, th2, a, b):
+    """Rows of I + a K + b K^2 with K = [phi]x, using K^2 = phi phi^T - |phi|^2 I."""
+    af0, af1, af2 = a * f0, a * f1, a * f2
+    bf0, bf1, bf2 = b * f0, b * f1, b * f2
+    bt = b * th2
+    return ((1.0 + bf0 * f0 - bt, bf0 * f1 - af2, bf0 * f2 + af1),
+            (bf1 * f0 + af2, 1.0 + bf1 * f1 - bt, bf1 * f2 - af0),
+            (bf2 * f0 - af1, bf2 * f1 + af0, 1.0 + bf2 * f2 - bt))
+
+
+def so3_exp(phi):
+    f0, f1, f2 = (float(c) for c in phi)
+    th2 = f0 * f0 + f1 * f1 + f2 * f2
+    a, b, _ = _so3_coefficients(th2)
+    return np.array(_i_plus_k(f0, f1, f2, th2, a, b))
 
 
 def so3_left_jacobian(phi):
-    th = math.sqrt(float(phi @ phi))
-    K = _skew(phi)
-    if th < 1e-6:
-        return np.eye(3) + 0.5 * K + (1.0 / 6.0) * (K @ K)
-    return (np.eye(3) + ((1.0 - math.cos(th)) / th**2) * K
-            + ((th - math.sin(th)) / th**3) * (K @ K))
+    f0, f1, f2 = (float(c) for c in phi)
+    th2 = f0 * f0 + f1 * f1 + f2 * f2
+    _, b, c = _so3_coefficients(th2)
+    return np.array(_i_plus_k(f0, f1, f2, th2, b, c))
+
+
+def _mm3(A, B):
+    """A @ B of 3x3 row tuples."""
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = B
+    return tuple((x0 * b00 + x1 * b10 + x2 * b20, x0 * b01 + x1 * b11 + x2 * b21,
+                  x0 * b02 + x1 * b12 + x2 * b22) for x0, x1, x2 in A)
+
+
+class _V3:
+    """3-vectors as tuples of floats, 3x3 matrices as tuples of rows (see "Speed" above)."""
+
+    I = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+    @staticmethod
+    def sI(s):
+        """s I."""
+        return ((s, 0.0, 0.0), (0.0, s, 0.0), (0.0, 0.0, s))
+
+    @staticmethod
+    def sub(a, b):
+        return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+    @staticmethod
+    def add(a, b):
+        return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+    @staticmethod
+    def axpy(s, x, y):
+        """s x + y."""
+        return (y[0] + s * x[0], y[1] + s * x[1], y[2] + s * x[2])
+
+    @staticmethod
+    def scale(s, x):
+        return (s * x[0], s * x[1], s * x[2])
+
+    @staticmethod
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    @staticmethod
+    def comb(c, vs):
+        """sum_i c_i vs_i."""
+        x = y = z = 0.0
+        for ci, v in zip(c, vs):
+            x += ci * v[0]
+            y += ci * v[1]
+            z += ci * v[2]
+        return (x, y, z)
+
+    @staticmethod
+    def mv(R, x):
+        x0, x1, x2 = x
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+        return (r00 * x0 + r01 * x1 + r02 * x2, r10 * x0 + r11 * x1 + r12 * x2,
+                r20 * x0 + r21 * x1 + r22 * x2)
+
+    @staticmethod
+    def mtv(R, x):
+        """R^T x, or the row vector x^T R."""
+        x0, x1, x2 = x
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = R
+        return (r00 * x0 + r10 * x1 + r20 * x2, r01 * x0 + r11 * x1 + r21 * x2,
+                r02 * x0 + r12 * x1 + r22 * x2)
+
+    @staticmethod
+    def cross(a, b):
+        """a x b (the moment of b at lever a), as a dth-tuple."""
+        a0, a1, a2 = a
+        b0, b1, b2 = b
+        return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+
+    @staticmethod
+    def wcross(w, r):
+        """omega x r."""
+        return _V3.cross(w, r)
+
+    @staticmethod
+    def X(x):
+        """_X(x) = -[x]x: dtheta -> dtheta x x."""
+        x0, x1, x2 = x
+        return ((0.0, x2, -x1), (-x2, 0.0, x0), (x1, -x0, 0.0))
+
+    @staticmethod
+    def XT(x):
+        """_X(x)^T = [x]x: dr -> x x dr (d(x x P) = X(P)^T ... see _pair)."""
+        x0, x1, x2 = x
+        return ((0.0, -x2, x1), (x2, 0.0, -x0), (-x1, x0, 0.0))
+
+    W = XT                      # _W(omega) = [omega]x
+    tscale = scale              # of a dth-vector (rotations: 3 in 3D, 1 in 2D)
+
+    @staticmethod
+    def vW(y, w):
+        """The row y^T _W(omega) = y x omega."""
+        return _V3.cross(y, w)
+
+    mm = staticmethod(lambda A, B: _mm3(A, B))     # A @ B, 3x3 rows
+
+    @staticmethod
+    def affine(red, s):
+        """a0 + T s of a reduced point (T: 3x2)."""
+        (a0, a1, a2), ((t00, t01), (t10, t11), (t20, t21)) = red
+        s0, s1 = s
+        return (a0 + (t00 * s0 + t01 * s1), a1 + (t10 * s0 + t11 * s1), a2 + (t20 * s0 + t21 * s1))
+
+
+class _V2:
+    """The 2D kit: the same names; cross products and rotations are 1-tuples / 2x1 columns."""
+
+    I = ((1.0, 0.0), (0.0, 1.0))
+
+    @staticmethod
+    def sI(s):
+        return ((s, 0.0), (0.0, s))
+
+    @staticmethod
+    def sub(a, b):
+        return (a[0] - b[0], a[1] - b[1])
+
+    @staticmethod
+    def add(a, b):
+        return (a[0] + b[0], a[1] + b[1])
+
+    @staticmethod
+    def axpy(s, x, y):
+        return (y[0] + s * x[0], y[1] + s * x[1])
+
+    @staticmethod
+    def scale(s, x):
+        return (s * x[0], s * x[1])
+
+    @staticmethod
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1]
+
+    @staticmethod
+    def comb(c, vs):
+        x = y = 0.0
+        for ci, v in zip(c, vs):
+            x += ci * v[0]
+            y += ci * v[1]
+        return (x, y)
+
+    @staticmethod
+    def mv(R, x):
+        x0, x1 = x
+        (r00, r01), (r10, r11) = R
+        return (r00 * x0 + r01 * x1, r10 * x0 + r11 * x1)
+
+    @staticmethod
+    def mtv(R, x):
+        x0, x1 = x
+        (r00, r01), (r10, r11) = R
+        return (r00 * x0 + r10 * x1, r01 * x0 + r11 * x1)
+
+    @staticmethod
+    def cross(a, b):
+        return (a[0] * b[1] - a[1] * b[0],)
+
+    @staticmethod
+    def wcross(w, r):
+        return (-w[0] * r[1], w[0] * r[0])
+
+    @staticmethod
+    def X(x):
+        return ((-x[1],), (x[0],))
+
+    @staticmethod
+    def XT(x):
+        return ((-x[1], x[0]),)
+
+    @staticmethod
+    def W(w):
+        return ((0.0, -w[0]), (w[0], 0.0))
+
+    @staticmethod
+    def vW(y, w):
+        return (w[0] * y[1], -w[0] * y[0])
+
+    @staticmethod
+    def tscale(s, x):
+        return (s * x[0],)
+
+    @staticmethod
+    def mm(A, B):
+        """A @ B for A with rows of length 2 (B: 2 rows)."""
+        B0, B1 = B
+        return tuple(tuple(a0 * x + a1 * y for x, y in zip(B0, B1)) for a0, a1 in A)
+
+    @staticmethod
+    def affine(red, s):
+        (a0, a1), ((t0,), (t1,)) = red
+        return (a0 + t0 * s[0], a1 + t1 * s[0])
+
+
+_VEC = {2: _V2, 3: _V3}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -176,6 +404,47 @@ _A_W_PLANAR = np.array([[0.0, 0.0, 1.0]])
 _A_V_PLANAR = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 
 
+class _BodyNow:
+    """The hot path's view of a body at l+1 for one evaluation: R (rows), p, omega, v_o as floats;
+    for a free body, what its J_l(h omega) is made of (dtheta = h J_l d omega; see theta_into)."""
+
+    __slots__ = ("R", "p", "w", "vo", "_jl", "_Rn")
+
+    def __init__(self, R, p, w, vo, jl=None):
+        self.R, self.p, self.w, self.vo, self._jl, self._Rn = R, p, w, vo, jl, None
+
+    def theta_into(self, out):
+        """out[:] = h J_l(h omega), the 3x3 block of dtheta / d omega of a free body."""
+        h, f0, f1, f2, th2, b, c = self._jl
+        np.multiply(_i_plus_k(f0, f1, f2, th2, b, c), h, out=out)
+
+    @property
+    def Rn(self):
+        """R as a numpy array (only rotated Hessians need it)."""
+        if self._Rn is None:
+            self._Rn = np.array(self.R)
+        return self._Rn
+
+
+def _body_now(kin: BodyKinematics, R0, p0, v):
+    """_BodyNow of a moving body from its velocity unknowns v (floats); the same pose as
+    BodyKinematics.pose, written out in floats: R+ = exp(h [omega]x) R0 (Rodrigues), p+ = p0 + h v_o."""
+    h = kin.h
+    if kin.kind == FREE:
+        w0, w1, w2, u0, u1, u2 = v
+        f0, f1, f2 = h * w0, h * w1, h * w2
+        th2 = f0 * f0 + f1 * f1 + f2 * f2
+        a, b, c = _so3_coefficients(th2)
+        R = _mm3(_i_plus_k(f0, f1, f2, th2, a, b), R0)
+        p = (p0[0] + h * u0, p0[1] + h * u1, p0[2] + h * u2)
+        return _BodyNow(R, p, (w0, w1, w2), (u0, u1, u2), (h, f0, f1, f2, th2, b, c))
+    # planar, XY
+    vx, vy, om = v
+    th = p0[2] + h * om                 # p0 is q0 = [x, y, theta] for planar bodies
+    c, s = math.cos(th), math.sin(th)
+    return _BodyNow(((c, -s), (s, c)), (p0[0] + h * vx, p0[1] + h * vy), (om,), (vx, vy))
+
+
 def _eval_functions(funcs, pose: Pose, a, jac=True):
     """Values, world gradients, world Hessians, and their v-derivatives of body functions at a.
 
@@ -187,8 +456,8 @@ def _eval_functions(funcs, pose: Pose, a, jac=True):
     G = np.empty((m, d))
     if not jac:
         for i, fn in enumerate(funcs):
-            f[i] = fn.value(xi)
-            G[i] = R @ fn.gradient(xi)
+            f[i], g = fn.value_gradient(xi)
+            G[i] = R @ g
         return f, G, None, None, None
     Hw = np.empty((m, d, d))
     for i, fn in enumerate(funcs):
@@ -198,7 +467,7 @@ def _eval_functions(funcs, pose: Pose, a, jac=True):
     if k == 0:
         return f, G, Hw, np.zeros((m, 0)), np.zeros((m, d, 0))
     Xr = _X(r)
-    # dtheta (x) r = Xr dtheta, so df = -G.(Xr dth + dp)
+    # dtheta (x) r = Xr dth, so df = -G.(Xr dth + dp)
     move = Xr @ pose.B_th + pose.B_p                      # d x k: material displacement of a
     dfdv = -G @ move
     dGdv = np.empty((m, d, k))
@@ -206,6 +475,140 @@ def _eval_functions(funcs, pose: Pose, a, jac=True):
         # dG = dtheta (x) G - Hw (dtheta (x) r + dp)
         dGdv[i] = _X(G[i]) @ pose.B_th - Hw[i] @ move
     return f, G, Hw, dfdv, dGdv
+
+
+# How the hot path evaluates one body function, cached per function object (_function_info):
+# an inline kernel for the common primitives, else the shape's own API (about 3-4 us per call
+# through its checks and conversions, ten times the arithmetic of a sphere or a plane), and the
+# Hessian when it is constant: 0.0 (planes), a float c for c I (spheres, discs: rotation
+# invariant, so R H R^T = c I without a product), or the body-frame matrix; None if it varies
+# and comes with each evaluation.
+_FUNCTION_INFO = weakref.WeakKeyDictionary()
+
+
+def _function_info(fn):
+    """(kernel or None, Hessian info) of a body function (see above)."""
+    try:
+        return _FUNCTION_INFO[fn]
+    except KeyError:
+        pass
+    except TypeError:            # not weak-referenceable: classify every time (rare)
+        return _kernel(fn), _classify_hessian(fn)
+    info = _FUNCTION_INFO[fn] = (_kernel(fn), _classify_hessian(fn))
+    return info
+
+
+def _classify_hessian(fn):
+    if not getattr(fn, "constant_hessian", False):
+        return None
+    H = np.array(fn.hessian(np.zeros(fn.dim)), float)
+    if not H.any():
+        return 0.0
+    if np.array_equal(H, H[0, 0] * np.eye(len(H))):
+        return float(H[0, 0])
+    return H
+
+
+def _kernel(fn):
+    """x (tuple, body frame) -> (f, grad f as a tuple) for spheres / discs, half-spaces /
+    half-planes and ellipsoids / ellipses: the formulas of shapes.py written on floats.
+    Each kernel is checked against the shape's value_gradient once; any disagreement (a shape
+    whose formula changed, a subclass) leaves that function on the shape's API."""
+    kern = None
+    kind = type(fn)
+    if kind in (shp.Sphere, shp.Disc):
+        # f = (|x - c|^2 - r^2) / (2 r), grad = (x - c) / r (a ball's placement rotation drops out)
+        r, c = float(fn.radius), tuple(fn.center.tolist())
+        inv2r, rr = 1.0 / (2.0 * r), r * r
+        if len(c) == 3:
+            def kern(x, c0=c[0], c1=c[1], c2=c[2]):
+                y0, y1, y2 = x[0] - c0, x[1] - c1, x[2] - c2
+                return (y0 * y0 + y1 * y1 + y2 * y2 - rr) * inv2r, (y0 / r, y1 / r, y2 / r)
+        else:
+            def kern(x, c0=c[0], c1=c[1]):
+                y0, y1 = x[0] - c0, x[1] - c1
+                return (y0 * y0 + y1 * y1 - rr) * inv2r, (y0 / r, y1 / r)
+    elif kind in (shp.HalfSpace, shp.HalfPlane):
+        # f = n . x - d with the placed plane (n, d) = plane(); grad = n
+        n_b, off = fn.plane()
+        n = tuple(float(v) for v in n_b)
+        off = float(off)
+        if len(n) == 3:
+            def kern(x, n0=n[0], n1=n[1], n2=n[2]):
+                return n0 * x[0] + n1 * x[1] + n2 * x[2] - off, n
+        else:
+            def kern(x, n0=n[0], n1=n[1]):
+                return n0 * x[0] + n1 * x[1] - off, n
+    elif kind in (shp.Ellipsoid, shp.Ellipse):
+        # xl = R0^T (x - c), X = xl / a: f = (s/2)(|X|^2 - 1), grad = R0 (s X / a), s = (prod a)^(1/d)
+        a = tuple(float(v) for v in fn.semi_axes)
+        dim = len(a)
+        sm = float(np.prod(fn.semi_axes) ** (1.0 / dim))
+        c = tuple(fn.center.tolist())
+        R0 = tuple(map(tuple, fn.rotation_matrix.tolist()))
+        V = _VEC[dim]
+
+        def kern(x):
+            xl = V.mtv(R0, V.sub(x, c))
+            X = [u / ai for u, ai in zip(xl, a)]
+            gl = [sm * u / ai for u, ai in zip(X, a)]
+            return 0.5 * sm * (sum(u * u for u in X) - 1.0), V.mv(R0, gl)
+    if kern is not None and not _kernel_agrees(fn, kern):
+        kern = None
+    return kern
+
+
+def _kernel_agrees(fn, kern):
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        x = rng.normal(size=fn.dim) * 0.7
+        v, g = fn.value_gradient(x)
+        kv, kg = kern(tuple(x.tolist()))
+        scale = 1.0 + abs(float(v)) + float(np.max(np.abs(g)))
+        if abs(kv - float(v)) > 1e-12 * scale or np.max(np.abs(np.array(kg) - g)) > 1e-12 * scale:
+            return False
+    return True
+
+
+def _evaluate(funcs, infos, S: _BodyNow, a, V, need_h):
+    """Hot-path body functions at the world point a: r = a - p, values f, world gradients G
+    (tuples), per function its body-frame Hessian (evaluated if it varies and need_h, else the
+    constant info of _function_info; None if it varies and is not needed), and xi as an array
+    (None if only kernels ran)."""
+    r = V.sub(a, S.p)
+    xi = V.mtv(S.R, r)                  # xi = R^T (a - p)
+    R = S.R
+    f, G, H = [], [], []
+    x = None
+    for fn, (kern, hi) in zip(funcs, infos):
+        if kern is not None:
+            v, g = kern(xi)
+        else:
+            if x is None:
+                x = np.array(xi)
+            if need_h and hi is None:
+                v, g, hi = fn.value_gradient_hessian(x)
+            else:
+                v, g = fn.value_gradient(x)
+            g = g.tolist()
+        f.append(v)
+        G.append(V.mv(R, g))
+        H.append(hi)
+    return r, f, G, H, x
+
+
+def _hessian_sum(weights, H, S: _BodyNow):
+    """sum_i w_i R H_i R^T as (s, M): s I + M, M (rows) None when every H_i is a multiple of I."""
+    s, Mb = 0.0, None
+    for w, Hi in zip(weights, H):
+        if isinstance(Hi, float):
+            s += w * Hi
+        else:
+            Mb = w * Hi if Mb is None else Mb + w * Hi
+    if Mb is None:
+        return s, None
+    Rn = S.Rn
+    return s, (Rn @ Mb @ Rn.T).tolist()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -271,8 +674,38 @@ class Layout:
     upper: np.ndarray
 
 
+def _position_rows(layout: Layout):
+    """The position-level rows (15), (17)-(19) of all pairs (scaled by 1/h), kept with the layout."""
+    rows = layout.__dict__.get("_position_rows")
+    if rows is None:
+        parts = [np.zeros(0, int)]
+        for sl in layout.pairs:
+            parts += [sl.rows_geo[: len(sl.rows_geo) // 2], sl.rows_l1, sl.rows_l2, [sl.row_n]]
+        rows = layout.__dict__["_position_rows"] = np.concatenate(parts).astype(int)
+    return rows
+
+
+_REDUCED_CACHE = weakref.WeakKeyDictionary()
+
+
 def _reduced_point(obj: ContactObject, kin: "BodyKinematics"):
-    """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents), world frame."""
+    """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents), world frame.
+    Cached per plane function and body pose (the ground is the same every step)."""
+    fn = obj.functions[0]
+    key = (kin.dim, np.asarray(kin.R0, float).tobytes(), np.asarray(kin.p0, float).tobytes())
+    try:
+        per_fn = _REDUCED_CACHE.setdefault(fn, {})
+    except TypeError:            # not weak-referenceable
+        return _reduced_point_uncached(obj, kin)
+    hit = per_fn.get(key)
+    if hit is None:
+        if len(per_fn) > 16:
+            per_fn.clear()
+        hit = per_fn[key] = _reduced_point_uncached(obj, kin)
+    return hit
+
+
+def _reduced_point_uncached(obj: ContactObject, kin: "BodyKinematics"):
     dim = kin.dim
     n_b, offset = obj.functions[0].plane()            # body frame
     R, p = kin.R0[:dim, :dim], kin.p0[:dim]
@@ -294,7 +727,7 @@ def _least_aligned_axis(n):
 def _tangent_basis(n, e):
     u = e - (e @ n) * n
     t = u / np.linalg.norm(u)
-    return np.array([n, t, np.cross(n, t)])
+    return np.array([n, t, _V3.cross(n, t)])
 
 
 def build_layout(nv_per_skeleton: list, specs: list) -> Layout:
@@ -388,11 +821,154 @@ class PairState:
     gap: float
 
 
+class _Side:
+    """A moving body of a pair: the sign of the pair's impulse on it (+1 body 2, -1 body 1), its
+    velocity rows vs in z, and the window columns of omega and v_o (free v = [omega; v_o],
+    planar v = [v_x, v_y, omega]; see _PairPlan)."""
+
+    __slots__ = ("sign", "vs", "free", "ow", "ov", "th_rows", "B2w")
+
+    def __init__(self, sign, vs, free, first):
+        self.sign, self.vs, self.free = sign, vs, free
+        self.ow, self.ov = (first, first + 3) if free else (first + 2, first)
+        self.th_rows = None            # rows of its TH in the plan's Bg (free bodies: set per call)
+
+
+class _PairPlan:
+    """Everything about one pair that does not depend on z, prepared once per problem.
+
+    Jacobian (see StepProblem._pair). A pair's rows and unknowns form one contiguous block of z,
+    and it touches only its moving bodies' velocities, which come first in z: every row of the
+    pair lives in the column window [lo, hi) from the first of those velocities to the end of the
+    block, and is written into J through a view of it. Every chain-rule term is a small
+    coefficient (built from floats) times a basis row block over the window, so each row family
+    costs one matrix product whatever the number of terms. The bases, (rows x window):
+
+      Bg = [DR11; DR12; TH1; DR22; TH2; E_l1; E_l2]    rows (15)-(19) and dn (TH only if moving)
+      B2 = [DR2; dn; E_imp; -DR1; EV2; EW2; -EV1; -EW1]    friction rows, impulse rows (windows)
+
+    DA = da/dz (T of a reduced point), DR = d(a - p)/dz of the lever arms r11 = a1 - p1,
+    r12 = a2 - p1 and r22 = a2 - p2 (dp = h dv_o), TH = dtheta/dz (h at a planar body's omega
+    column; h J_l(h omega) at a free body's, written per call), EV, EW = dv_o/dz, domega/dz,
+    E_l, E_imp = unit rows of the multipliers and of the impulse unknowns p_n .. sigma; dn is
+    written per call."""
+
+    def __init__(self, problem, k, spec, sl):
+        d = spec.dim
+        self.spec, self.sl, self.d, self.dth, self.V = spec, sl, d, 3 if d == 3 else 1, _VEC[d]
+        self.b1, self.b2 = spec.obj1.body, spec.obj2.body
+        kin1, kin2 = problem.bodies[self.b1], problem.bodies[self.b2]
+        if self.b1 == self.b2 and kin1.vindex is not None:
+            raise ValueError("a pair needs two different bodies")
+        self.fns1, self.fns2 = tuple(spec.obj1.functions), tuple(spec.obj2.functions)
+        self.m1, self.m2 = len(self.fns1), len(self.fns2)
+        self.infos1 = [_function_info(f) for f in self.fns1]
+        self.infos2 = [_function_info(f) for f in self.fns2]
+        self.Hc1, self.Hc2 = [hi for _, hi in self.infos1], [hi for _, hi in self.infos2]
+        self.fr = sl.sigma >= 0                # the rows the layout has (the stepper toggles
+        self.torsion = sl.p_r >= 0             # spec.with_friction between layouts)
+        # reduced points of fixed half-spaces: a = a0 + T s, constant gradient, no Hessian
+        r1, r2 = problem._reduced[k]
+        self.red1 = None if r1 is None else (tuple(r1[0].tolist()), tuple(map(tuple, r1[1].tolist())))
+        self.red2 = None if r2 is None else (tuple(r2[0].tolist()), tuple(map(tuple, r2[1].tolist())))
+        self.Gc1 = self.Gc2 = None
+        if r1 is not None:
+            self.Gc1 = _evaluate(self.fns1, self.infos1, problem._states[self.b1], self.red1[0], self.V, False)[2]
+        if r2 is not None:
+            self.Gc2 = _evaluate(self.fns2, self.infos2, problem._states[self.b2], self.red2[0], self.V, False)[2]
+        self.axis_src = self.axis = None       # spec.tangent_axis as floats (the stepper may set it late)
+        # the rest depends only on the layout, the bodies' kinds, columns and h, and the reduced
+        # points' T: built once and kept with the layout's slots (the stepper reuses layouts)
+        key = (d, kin1.kind, kin2.kind, kin1.h, kin2.h, _first(kin1.vindex), _first(kin2.vindex),
+               None if r1 is None else r1[1].tobytes(), None if r2 is None else r2[1].tobytes())
+        cache = sl.__dict__.setdefault("_plan_geometry", {})
+        geometry = cache.get(key)
+        if geometry is None:
+            if len(cache) > 16:
+                cache.clear()
+            geometry = cache[key] = _pair_geometry(sl, d, kin1, kin2, problem._vslice[self.b1],
+                                                   problem._vslice[self.b2], r1, r2, self.fr)
+        self.__dict__.update(geometry)
+
+
+def _first(index):
+    return None if index is None else int(index[0])
+
+
+def _pair_geometry(sl, d, kin1, kin2, vs1, vs2, r1, r2, fr):
+    """The z-independent attributes of a _PairPlan that depend on the layout and the bodies only
+    (row and column slices, moving sides, the bases Bg and B2), as a dict."""
+    dth = 3 if d == 3 else 1
+    m1, m2 = len(sl.l1), len(sl.l2)
+    g = {}
+    # rows: (15)-(19) are the block's first rows up to p_n; friction, torsion and cone rows the
+    # rest (rows share the indices of the unknowns they pair with)
+    c0 = int(sl.rows_geo[0])
+    hi = (sl.sigma if fr else sl.p_n) + 1
+    g["rows"] = slice(c0, hi)
+    g["geo_rows"], g["n_geo"] = slice(c0, sl.p_n + 1), sl.p_n + 1 - c0
+    g["fric_rows"] = slice(int(sl.p_t[0]), hi) if fr else None
+    # the column window and the moving sides
+    lo = min([c0] + [int(kin.vindex[0]) for kin in (kin1, kin2) if kin.vindex is not None])
+    g["cols"], nw = slice(lo, hi), hi - lo
+    side2 = None if kin2.vindex is None else _Side(1.0, vs2, kin2.kind == FREE, int(kin2.vindex[0]) - lo)
+    side1 = None if kin1.vindex is None else _Side(-1.0, vs1, kin1.kind == FREE, int(kin1.vindex[0]) - lo)
+    g["side1"], g["side2"] = side1, side2
+
+    def unit(first, count):
+        E = np.zeros((count, nw))
+        E[:, first - lo:first - lo + count] = np.eye(count)
+        return E
+
+    DA1, DA2 = np.zeros((d, nw)), np.zeros((d, nw))
+    DA1[:, int(sl.a1[0]) - lo:int(sl.a1[-1]) + 1 - lo] = _EYE[d] if r1 is None else r1[1]
+    DA2[:, int(sl.a2[0]) - lo:int(sl.a2[-1]) + 1 - lo] = _EYE[d] if r2 is None else r2[1]
+    EV, EW, DP, TH = {}, {}, {None: 0.0}, {}
+    for side, kin in ((side1, kin1), (side2, kin2)):
+        if side is not None:
+            EV[side], EW[side] = unit(side.ov + lo, d), unit(side.ow + lo, dth)
+            DP[side] = kin.h * EV[side]
+            TH[side] = np.zeros((3, nw)) if side.free else kin.h * EW[side]
+    DR11, DR12, DR22 = DA1 - DP[side1], DA2 - DP[side1], DA2 - DP[side2]
+    blocks = [DR11, DR12]
+    if side1 is not None:
+        side1.th_rows = slice(2 * d, 2 * d + dth)
+        blocks.append(TH[side1])
+    blocks.append(DR22)
+    if side2 is not None:
+        n0 = sum(len(b) for b in blocks)
+        side2.th_rows = slice(n0, n0 + dth)
+        blocks.append(TH[side2])
+    blocks += [unit(int(sl.l1[0]), m1), unit(int(sl.l2[0]), m2)]
+    g["Bg"] = np.vstack(blocks)
+    # B2 = [DR2; dn; E_imp; -DR1; EV2; EW2; -EV1; -EW1] (absent sides dropped; body 1's blocks
+    # carry its sign -1 of v_rel = v_2 - v_1). A body's impulse rows need only [DR2; dn; E_imp]
+    # (body 2) or [dn; E_imp; -DR1] (body 1): windows of B2.
+    g["n_imp"] = n_imp = hi - sl.p_n
+    blocks = ([DR22] if side2 else []) + [np.zeros((d, nw)), unit(sl.p_n, n_imp)]
+    blocks += [-DR11] if side1 else []
+    blocks += ([EV[side2], EW[side2]] if side2 else []) + ([-EV[side1], -EW[side1]] if side1 else [])
+    g["B2"] = B2 = np.vstack(blocks)
+    o = d if side2 else 0
+    g["dn_rows"] = slice(o, o + d)
+    if side2:
+        side2.B2w = B2[:2 * d + n_imp]
+    if side1:
+        side1.B2w = B2[o:o + 2 * d + n_imp]
+    g["K2"] = len(B2)
+    # zero coefficient blocks
+    g["zd"], g["zth"], g["zvw"] = (0.0,) * d, (0.0,) * dth, (0.0,) * (d + dth)
+    g["zl1"], g["zl2"] = (0.0,) * m1, (0.0,) * m2
+    return g
+
+
 class StepProblem:
     """F(z) and dF/dz of one geometrically implicit step, for ``ncp.solve_mcp``.
 
     ``fun`` evaluates the rows only (line-search trials need no Jacobian); ``jac`` evaluates both
-    and caches them for the last z. Every contiguous block is written through slices."""
+    and caches them for the last z. Both run the same code for the rows (``_pair``), so F is
+    bitwise the same either way; the solver asks for J where it has just evaluated F, and then
+    ``jac`` only finishes the pair evaluations that ``fun`` left suspended."""
 
     def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout):
         self.h = h
@@ -407,22 +983,38 @@ class StepProblem:
         scale = np.ones(layout.n)
         for s, sk in enumerate(skeletons):
             scale[_as_slice(layout.v_index[s])] = 1.0 / np.maximum(np.diag(sk.M), 1e-300)
-        for spec, sl in zip(specs, layout.pairs):
-            scale[sl.rows_geo[: spec.dim]] = 1.0 / h
-            scale[sl.rows_l1] = 1.0 / h
-            scale[sl.rows_l2] = 1.0 / h
-            scale[sl.row_n] = 1.0 / h
+        scale[_position_rows(layout)] = 1.0 / h
         self._row_scale = scale
+        self._row_scale_col = scale[:, None]
         self._body_skel = {sk.body: s for s, sk in enumerate(skeletons)}
         self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
+        self._skel = [(_as_slice(lay_v), sk.M, sk.v, h * sk.force)
+                      for lay_v, sk in zip(layout.v_index, skeletons)]
         self._reduced = []
         for spec in specs:
             r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
             r2 = _reduced_point(spec.obj2, bodies[spec.obj2.body]) if spec.obj2.fixed_halfspace else None
             self._reduced.append((r1, r2))
+        # hot-path body data: fixed bodies' poses once; moving bodies' R0 rows and p0 (q0 planar)
+        self._states = []
+        self._moving = []
+        for b, kin in enumerate(bodies):
+            if kin.vindex is None:
+                d = kin.dim
+                R = tuple(map(tuple, np.asarray(kin.R0, float)[:d, :d].tolist()))
+                p = tuple(np.asarray(kin.p0, float)[:d].tolist())
+                self._states.append(_BodyNow(R, p, (0.0,) * (3 if d == 3 else 1), (0.0,) * d))
+            else:
+                self._states.append(None)
+                R0 = tuple(map(tuple, np.asarray(kin.R0, float).tolist()))
+                base = kin.p0 if kin.kind == FREE else kin.q0
+                self._moving.append((b, kin, self._vslice[b], R0, tuple(np.asarray(base, float).tolist())))
+        self._plans = [_PairPlan(self, k, spec, sl) for k, (spec, sl) in enumerate(zip(specs, layout.pairs))]
         self._key_f = self._key_j = None
         self._F = self._J = None
-        self._pairs_at = None      # per-pair quantities at _key_f, for reports
+        self._reports = None       # per-pair quantities at _key_f as floats (see _pairs_at)
+        self._reports_np = None
+        self._resume = None        # the suspended pair evaluations at _key_f (see _pair)
 
     # -- unknown vector helpers ---------------------------------------------------------------
     def body_velocity(self, z, body_index):
@@ -453,199 +1045,303 @@ class StepProblem:
     # -- evaluation -----------------------------------------------------------------------------
     def fun(self, z):
         if self._key_f is None or not np.array_equal(z, self._key_f):
-            self._F, _, self._pairs_at = self._assemble(z, False)
+            self._F, reports, self._resume = self._rows(z, False)
+            self._reports, self._reports_np = reports, None
             self._key_f = z.copy()
         return self._F
 
     def jac(self, z):
         if self._key_j is None or not np.array_equal(z, self._key_j):
-            F, J, pairs = self._assemble(z, True)
+            if self._resume is not None and np.array_equal(z, self._key_f):
+                # the solver asks for J where it last evaluated F: finish those evaluations
+                J = self._jacobian(self._resume)
+            else:
+                F, reports, resume = self._rows(z, True)
+                J = self._jacobian(resume)
+                self._F, self._key_f, self._reports, self._reports_np = F, z.copy(), reports, None
+            self._resume = None
             self._key_j = z.copy()
             self._J = J
-            self._F, self._key_f, self._pairs_at = F, self._key_j, pairs
         return self._J
 
     def _assemble(self, z, need_jac):
-        lay = self.layout
-        n = lay.n
-        F = np.zeros(n)
-        J = np.zeros((n, n)) if need_jac else None
-        poses = [kin.pose(self.body_velocity(z, b)) for b, kin in enumerate(self.bodies)]
-        for s, sk in enumerate(self.skeletons):
-            vs = _as_slice(lay.v_index[s])
-            F[vs] = sk.M @ (z[vs] - sk.v) - self.h * sk.force
-            if need_jac:
-                J[vs, vs] = sk.M
-        pairs = [self._pair(z, k, spec, poses, F, J) for k, spec in enumerate(self.specs)]
-        F *= self._row_scale
-        if need_jac:
-            J *= self._row_scale[:, None]
-        return F, J, pairs
+        """(F, J or None, per pair (a1, a2, normal, tangents, gap, v_rel) as arrays)."""
+        F, reports, resume = self._rows(z, need_jac)
+        return F, (self._jacobian(resume) if need_jac else None), [_report_arrays(r) for r in reports]
 
-    def _pair(self, z, k, spec, poses, F, J):
-        """Rows of pair k into F (and J if given); returns the pair's state for reports."""
-        sl = self.layout.pairs[k]
-        d = spec.dim
-        b1, b2 = spec.obj1.body, spec.obj2.body
-        P1, P2 = poses[b1], poses[b2]
-        v1s, v2s = self._vslice[b1], self._vslice[b2]
-        a1, T1, a2, T2 = self.points(z, k)
-        jac = J is not None
-        m1 = len(spec.obj1.functions)
-        fa1, Ga1, Ha1, dfa1, dGa1 = _eval_functions(spec.obj1.functions, P1, a1, jac)
-        fa2, Ga2, _, dfa2, _ = _eval_functions(spec.obj1.functions, P1, a2, jac)
-        gb2, Gb2, Hb2, dgb2, dGb2 = _eval_functions(spec.obj2.functions, P2, a2, jac)
-        l1, l2 = z[sl.l1s], z[sl.l2s]
-        k1 = spec.k1
-        c = l1.copy()
-        c[k1] = 1.0                      # N1 = sum_i c_i G_i with c_k1 = 1
-        N1 = c @ Ga1
+    @property
+    def _pairs_at(self):
+        """Per pair (a1, a2, normal, tangents, gap, v_rel) at the last evaluated z, as arrays
+        (made on demand: the evaluations keep them as floats)."""
+        if self._reports_np is None and self._reports is not None:
+            self._reports_np = [_report_arrays(r) for r in self._reports]
+        return self._reports_np
+
+    def _rows(self, z, need_hessians):
+        """F (scaled), the pairs' reports (floats), and per pair the suspended evaluation that
+        makes its Jacobian when resumed (see _pair). need_hessians: evaluate varying Hessians
+        right away."""
+        n = self.layout.n
+        F = np.zeros(n)
+        zl = z.tolist()                  # the hot path reads unknowns as floats
+        states = list(self._states)
+        for b, kin, vs, R0, p0 in self._moving:
+            states[b] = _body_now(kin, R0, p0, zl[vs])
+        for vs, M, v, hforce in self._skel:
+            F[vs] = M @ (z[vs] - v) - hforce
+        resume = [self._pair(pl, zl, states, F, need_hessians) for pl in self._plans]
+        pairs = [next(g) for g in resume]
+        F *= self._row_scale
+        return F, pairs, resume
+
+    def _jacobian(self, resume):
+        n = self.layout.n
+        J = np.zeros((n, n))
+        for vs, M, _, _ in self._skel:
+            J[vs, vs] = M
+        for g in resume:
+            g.send(J)
+        J *= self._row_scale_col
+        return J
+
+    def _pair(self, pl: _PairPlan, zl, states, F, need_h):
+        """One pair, in two phases (a generator). next() writes its rows into F and yields its
+        report (a1, a2, normal, tangents, gap, v_rel); send(J) then writes its Jacobian into J,
+        from the same frame: ``jac`` at the point of the last ``fun`` (where the solver always
+        asks for it) resumes those evaluations instead of redoing the rows. The rows are
+        computed on floats; the Jacobian is the chain rule of the same formulas, as coefficient
+        rows times the plan's bases (see _PairPlan)."""
+        spec, sl, V, d = pl.spec, pl.sl, pl.V, pl.d
+        S1, S2 = states[pl.b1], states[pl.b2]
+        side1, side2 = pl.side1, pl.side2
+        a1 = zl[sl.a1s] if pl.red1 is None else V.affine(pl.red1, zl[sl.a1s])
+        a2 = zl[sl.a2s] if pl.red2 is None else V.affine(pl.red2, zl[sl.a2s])
+        l1, l2 = zl[sl.l1s], zl[sl.l2s]
+        k1, m1 = spec.k1, pl.m1
+        # body functions: lever r = a - p, values, world gradients (Hessian data for the
+        # Jacobian). A fixed half-space side has a constant gradient and no value row (l free).
+        if pl.red1 is None:
+            r11, f1, G1, H1, x11 = _evaluate(pl.fns1, pl.infos1, S1, a1, V, need_h)
+        else:
+            r11, f1, G1, H1 = None, None, pl.Gc1, pl.Hc1
+        r12, f12, G12, _, _ = _evaluate(pl.fns1, pl.infos1, S1, a2, V, False)
+        if pl.red2 is None:
+            r22, f2, G2, H2, x22 = _evaluate(pl.fns2, pl.infos2, S2, a2, V, need_h)
+        else:
+            r22, f2, G2, H2 = None, None, pl.Gc2, pl.Hc2
+
+        # -- (15)-(19)
+        if m1 == 1:
+            c1, N1 = (1.0,), G1[0]
+        else:
+            c1 = list(l1)
+            c1[k1] = 1.0                 # N1 = sum_i c_i G_i with c_k1 = 1
+            N1 = V.comb(c1, G1)
         lk = l1[k1]
-        r15 = slice(sl.rows_geo[0], sl.rows_geo[0] + d)
-        r16 = slice(sl.rows_geo[0] + d, sl.rows_geo[0] + 2 * d)
-        F[r15] = a1 - a2 + lk * N1                                  # (15) / (28)
-        F[r16] = N1 + l2 @ Gb2                                      # (16) / (29)
-        F[sl.rows_l1s] = -fa1[sl.l1_bounded]                        # (17) / (30)
-        F[sl.rows_l2s] = -gb2[sl.l2_bounded]                        # (18) / (31)
-        ia = int(np.argmax(fa2))
-        F[sl.row_n] = fa2[ia]                                       # (19) / (32)
-        nrm = math.sqrt(float(N1 @ N1))
-        nhat = N1 / nrm
-        tang, dtang = _tangents(nhat, spec.tangent_axis, jac)
+        N2 = V.comb(l2, G2)
+        rows = [*V.axpy(lk, N1, V.sub(a1, a2)), *V.add(N1, N2)]       # (15) / (28), (16) / (29)
+        if f1 is not None:
+            rows += [-x for x in f1]                                   # (17) / (30)
+        if f2 is not None:
+            rows += [-x for x in f2]                                   # (18) / (31)
+        ia = 0 if m1 == 1 else max(range(m1), key=f12.__getitem__)     # the first maximiser
+        gap = f12[ia]
+        rows.append(gap)                                               # (19) / (32)
+
+        # -- normal, tangents (Gram-Schmidt on the pair's axis in 3D), impulse on body 2
+        nrm = math.sqrt(V.dot(N1, N1))
+        n = V.scale(1.0 / nrm, N1)
+        if d == 3:
+            if spec.tangent_axis is not pl.axis_src:
+                pl.axis_src, pl.axis = spec.tangent_axis, tuple(float(x) for x in spec.tangent_axis)
+            e = pl.axis
+            en = V.dot(e, n)
+            u = V.axpy(-en, n, e)
+            nu = math.sqrt(V.dot(u, u))
+            t = V.scale(1.0 / nu, u)
+            tang = (t, V.cross(n, t))
+        else:
+            tang = ((-n[1], n[0]),)
         s_p = spec.impulse_scale
-        fr = spec.with_friction
-        p_n = z[sl.p_n]
-        p_t = z[sl.p_ts] if fr else _EMPTY
-        torsion = sl.p_r >= 0
-        p_r = z[sl.p_r] if torsion else 0.0
+        fr, torsion = pl.fr, pl.torsion
+        p_n = zl[sl.p_n]
+        p_t = zl[sl.p_ts] if fr else ()
+        p_r = zl[sl.p_r] if torsion else 0.0
         e_r = spec.friction.e_r
-        Pvec = s_p * p_n * nhat
-        if fr:
-            Pvec = Pvec + s_p * (p_t @ tang)
-        tau = s_p * e_r * p_r * nhat if torsion else None
-        if jac:
-            eye_d = _EYE[d]
-            dN1_da1 = Ha1[0] if m1 == 1 else np.einsum("i,ijk->jk", c, Ha1)
-            dN1_dv1 = (dGa1[0] if m1 == 1 else np.einsum("i,ijk->jk", c, dGa1)) if v1s is not None else None
-            others = [i for i in range(m1) if i != k1]
-            a1s, a2s = sl.a1s, sl.a2s
-            J[r15, a1s] = (eye_d + lk * dN1_da1) @ T1
-            J[r15, a2s] = -T2
-            J[r15, sl.l1[k1]] = N1
-            J[r16, a1s] = dN1_da1 @ T1
-            J[r16, a2s] = (np.einsum("j,jkl->kl", l2, Hb2) if len(l2) > 1 else l2[0] * Hb2[0]) @ T2
-            J[r16, sl.l2s] = Gb2.T
-            for i in others:
-                J[r15, sl.l1[i]] = lk * Ga1[i]
-                J[r16, sl.l1[i]] = Ga1[i]
-            if v1s is not None:
-                J[r15, v1s] = lk * dN1_dv1
-                J[r16, v1s] = dN1_dv1
-            if v2s is not None:
-                J[r16, v2s] = l2[0] * dGb2[0] if len(l2) == 1 else np.einsum("j,jkl->kl", l2, dGb2)
-            for i, row in zip(sl.l1_bounded, sl.rows_l1):
-                J[row, a1s] = -Ga1[i] @ T1
-                if v1s is not None:
-                    J[row, v1s] = -dfa1[i]
-            for j, row in zip(sl.l2_bounded, sl.rows_l2):
-                J[row, a2s] = -Gb2[j] @ T2
-                if v2s is not None:
-                    J[row, v2s] = -dgb2[j]
-            J[sl.row_n, a2s] = Ga2[ia] @ T2
-            if v1s is not None:
-                J[sl.row_n, v1s] = dfa2[ia]
-            # the normal's derivative: dn = Pn dN1, dN1 = dN1_da1 T1 da1 + dN1_dv1 dv1 + G_i dl_i
-            Pn = (eye_d - np.outer(nhat, nhat)) / nrm
-            dP_dn = s_p * p_n * eye_d
-            if fr:
-                for a in range(d - 1):
-                    dP_dn = dP_dn + s_p * p_t[a] * dtang[a]
-            dN1_a1 = dN1_da1 @ T1
-        # generalized contact impulses: +P at a2 on body 2, -P at a1 on body 1 (and moments)
-        for sign, b, Pz, a, T, aslc, vs in ((1.0, b2, P2, a2, T2, sl.a2s, v2s),
-                                            (-1.0, b1, P1, a1, T1, sl.a1s, v1s)):
-            if vs is None:
+        P = V.scale(s_p * p_n, n)
+        for pa, ta in zip(p_t, tang):
+            P = V.axpy(s_p * pa, ta, P)
+        tau = V.scale(s_p * e_r * p_r, n) if torsion else None
+        # generalized impulses: +P at a2 (moment +tau) on body 2, -P at a1 (-tau) on body 1;
+        # a force P at lever r is the moment r x P and the force P
+        for side, r in ((side2, r22), (side1, r11)):
+            if side is None:
                 continue
-            r = a - Pz.p
-            M_fac = Pz.A_v.T + Pz.A_w.T @ _X(r).T              # k x d: generalized impulse of a force
-            gen = M_fac @ Pvec
+            gw = V.cross(r, P)
             if torsion:
-                gen = gen + Pz.A_w.T @ tau
-            F[vs] -= sign * gen
-            if not jac:
-                continue
-            J[vs, sl.p_n] -= sign * (M_fac @ (s_p * nhat))
-            if fr:
-                J[vs, sl.p_ts] -= sign * (M_fac @ (s_p * tang.T))
-            if torsion:
-                J[vs, sl.p_r] -= sign * (Pz.A_w.T @ (s_p * e_r * nhat))
-            dgen_dr = sign * (Pz.A_w.T @ (-_X(Pvec).T))         # lever arm r = a - p(v)
-            J[vs, aslc] -= dgen_dr @ T
-            J[vs, vs] += dgen_dr @ Pz.B_p
-            dgen_dn = sign * (M_fac @ dP_dn)
-            if torsion:
-                dgen_dn = dgen_dn + sign * (Pz.A_w.T * (s_p * e_r * p_r))
-            G_ = dgen_dn @ Pn
-            J[vs, sl.a1s] -= G_ @ dN1_a1
-            if v1s is not None:
-                J[vs, v1s] -= G_ @ dN1_dv1
-            for i in others:
-                J[vs, sl.l1[i]] -= G_ @ Ga1[i]
+                gw = V.add(gw, tau)
+            gen = gw + P if side.free else P + gw
+            if side.sign > 0.0:
+                F[side.vs] -= gen
+            else:
+                F[side.vs] += gen
+
+        # -- friction (21)-(22)
         vrel = None
         if fr:
             mu = spec.friction.mu
-            vrel, dvrel = _relative_velocity(z, P1, P2, v1s, v2s, a1, a2, T1, T2, sl, jac)
-            e = (spec.friction.e_t, spec.friction.e_o)
-            sigma = z[sl.sigma]
-            rows = sl.rows_fric
+            e_ax = (spec.friction.e_t, spec.friction.e_o)
+            sigma = zl[sl.sigma]
+            vrel = (0.0,) * d                # v_2(a2) - v_1(a1): v_o + omega x r of each body
+            wrel = (0.0,) * pl.dth
+            if side2 is not None:
+                vrel = V.add(vrel, V.add(S2.vo, V.wcross(S2.w, r22)))
+                wrel = S2.w
+            if side1 is not None:
+                vrel = V.sub(vrel, V.add(S1.vo, V.wcross(S1.w, r11)))
+                wrel = V.sub(wrel, S1.w) if d == 3 else (wrel[0] - S1.w[0],)
             cone = (mu * p_n) ** 2
+            vt = [V.dot(ta, vrel) for ta in tang]
             for a in range(d - 1):
-                row = rows[a]
-                ea2 = e[a] ** 2
-                vt = tang[a] @ vrel
-                F[row] = ea2 * mu * p_n * vt + p_t[a] * sigma
-                cone -= (p_t[a] / e[a]) ** 2
-                if jac:
-                    J[row, sl.p_n] += ea2 * mu * vt
-                    J[row, sl.p_t[a]] += sigma
-                    J[row, sl.sigma] += p_t[a]
-                    coef = ea2 * mu * p_n
-                    for cols, block in dvrel:
-                        J[row, cols] += coef * (tang[a] @ block)
-                    dt_dN = (vrel @ dtang[a]) @ Pn
-                    J[row, sl.a1s] += coef * (dt_dN @ dN1_a1)
-                    if v1s is not None:
-                        J[row, v1s] += coef * (dt_dN @ dN1_dv1)
-                    for i in others:
-                        J[row, sl.l1[i]] += coef * (dt_dN @ Ga1[i])
-                    J[sl.sigma, sl.p_t[a]] = -2.0 * p_t[a] / e[a] ** 2
+                rows.append(e_ax[a] ** 2 * mu * p_n * vt[a] + p_t[a] * sigma)
+                cone -= (p_t[a] / e_ax[a]) ** 2
             if torsion:
                 # e_r mu p_n (n . w_rel) + p~_r sigma = 0, p_r = e_r p~_r
-                row = rows[d - 1]
-                wrel = (P2.omega if v2s is not None else _ZERO3) - (P1.omega if v1s is not None else _ZERO3)
-                wn = nhat @ wrel
-                F[row] = e_r * mu * p_n * wn + p_r * sigma
+                wn = V.dot(n, wrel)
+                rows.append(e_r * mu * p_n * wn + p_r * sigma)
                 cone -= p_r ** 2
-                if jac:
-                    J[row, sl.p_n] += e_r * mu * wn
-                    J[row, sl.p_r] += sigma
-                    J[row, sl.sigma] += p_r
-                    coef = e_r * mu * p_n
-                    if v2s is not None:
-                        J[row, v2s] += coef * (nhat @ P2.A_w)
-                    if v1s is not None:
-                        J[row, v1s] -= coef * (nhat @ P1.A_w)
-                    dwn_dN = wrel @ Pn
-                    J[row, sl.a1s] += coef * (dwn_dN @ dN1_a1)
-                    if v1s is not None:
-                        J[row, v1s] += coef * (dwn_dN @ dN1_dv1)
-                    for i in others:
-                        J[row, sl.l1[i]] += coef * (dwn_dN @ Ga1[i])
-                    J[sl.sigma, sl.p_r] = -2.0 * p_r
-            F[sl.sigma] = cone                                      # (22)
-            if jac:
-                J[sl.sigma, sl.p_n] = 2.0 * mu * mu * p_n
-        return (a1, a2, nhat, tang, float(fa2[ia]), vrel)
+            rows.append(cone)                                          # (22)
+        F[pl.rows] = rows
+        J = yield a1, a2, n, tang, gap, vrel
+
+        # ---- Jacobian. Material displacement of a point of a body (the world change of
+        # R^T (a - p)): DM = DR - X(r) TH; then df = G . DM and dG = X(G) TH + Hw DM, so for
+        # N = sum_i w_i G_i (N1: w = c, N2: w = l2) dN = H DR + C TH + (G_i at the l_i columns)
+        # with H = sum_i w_i Hw_i and C = X(N) - H X(r). Row by row over the blocks of Bg.
+        I, mI, zd, zth = V.I, _NEG_I[d], pl.zd, pl.zth
+        has1, has2 = side1 is not None, side2 is not None
+        zt1, zt2 = (zth if has1 else ()), (zth if has2 else ())
+        Bg = pl.Bg
+        if has1 and side1.free:
+            S1.theta_into(Bg[side1.th_rows, side1.ow:side1.ow + 3])
+        if has2 and side2.free:
+            S2.theta_into(Bg[side2.th_rows, side2.ow:side2.ow + 3])
+        # Hessians that vary with the point and were not evaluated with the rows
+        H1 = [np.asarray(fn.hessian(x11), float) if hi is None else hi for fn, hi in zip(pl.fns1, H1)]
+        H2 = [np.asarray(fn.hessian(x22), float) if hi is None else hi for fn, hi in zip(pl.fns2, H2)]
+        s1, M1 = _hessian_sum(c1, H1, S1)
+        s2, M2 = _hessian_sum(l2, H2, S2)
+        H1r, C1 = _curvature(s1, M1, N1, r11, V, has1)
+        H2r, C2 = _curvature(s2, M2, N2, r22, V, has2)
+        Pn = _normalizer(n, nrm)                                       # dn = Pn dN1
+        PH1 = V.mm(Pn, H1r) if M1 is not None else tuple(V.scale(s1, row) for row in Pn)   # Pn H1
+        PC1 = V.mm(Pn, C1) if has1 else ((),) * d
+        if m1 == 1:
+            l15, l16, ldn = tuple((x,) for x in N1), ((0.0,),) * d, ((0.0,),) * d
+        else:
+            PG = [V.mv(Pn, g) for g in G1]
+            l15 = tuple(tuple(N1[i] if j == k1 else lk * G1[j][i] for j in range(m1)) for i in range(d))
+            l16 = tuple(tuple(0.0 if j == k1 else G1[j][i] for j in range(m1)) for i in range(d))
+            ldn = tuple(tuple(0.0 if j == k1 else PG[j][i] for j in range(m1)) for i in range(d))
+        G2T = tuple(zip(*G2))
+        zl1, zl2 = pl.zl1, pl.zl2
+        lkC1 = tuple(V.tscale(lk, c) for c in C1) if has1 else C1
+        flat = []                        # coefficient rows, concatenated
+        for i in range(d):                                             # (15)
+            flat += V.axpy(lk, H1r[i], I[i]) + mI[i] + lkC1[i] + zd + zt2 + l15[i] + zl2
+        for i in range(d):                                             # (16)
+            flat += H1r[i] + zd + C1[i] + H2r[i] + C2[i] + l16[i] + G2T[i]
+        if f1 is not None:                                             # (17): -G DM11
+            for g in G1:
+                flat += V.scale(-1.0, g) + zd + (V.cross(r11, g) if has1 else ()) + zd + zt2 + zl1 + zl2
+        if f2 is not None:                                             # (18): -G DM22
+            for g in G2:
+                flat += zd + zd + zt1 + V.scale(-1.0, g) + (V.cross(r22, g) if has2 else ()) + zl1 + zl2
+        g = G12[ia]                                                    # (19): G DM12
+        flat += zd + g + (V.tscale(-1.0, V.cross(r12, g)) if has1 else ()) + zd + zt2 + zl1 + zl2
+        for i in range(d):                                             # dn
+            flat += PH1[i] + zd + PC1[i] + zd + zt2 + ldn[i] + zl2
+        out = np.fromiter(flat, float, len(flat)).reshape(-1, len(Bg)) @ Bg
+        ng = pl.n_geo
+        J[pl.geo_rows, pl.cols] = out[:ng]
+        dn = out[ng:]
+
+        # -- rows downstream of n: friction, torsion, cone and the generalized impulses, over the
+        # blocks of B2 = [DR2; dn; E_imp; -DR1; EV2; EW2; -EV1; -EW1] (E_imp: p_n, p_t.., p_r, sigma)
+        B2 = pl.B2
+        B2[pl.dn_rows] = dn
+        if fr:
+            Dt = _tangent_derivatives(n, e, en, t, nu, tang[1]) if d == 3 else (_ROT90_ROWS,)
+            zt = (0.0,) * (d - 1)
+            p_r_pad = (0.0,) if torsion else ()
+            z2, z1 = (zd if has2 else ()), (zd if has1 else ())
+            flat = []                    # coefficient rows, concatenated
+            for a in range(d - 1):
+                # e_a^2 mu p_n (t_a . v_rel) + p_t[a] sigma; d v_rel = sum_bodies +-(EV + X(r) EW + W DR)
+                ta, ea2 = tang[a], e_ax[a] ** 2
+                ca = ea2 * mu * p_n
+                cta = V.scale(ca, ta)
+                flat += (V.vW(cta, S2.w) if has2 else ()) + V.scale(ca, V.mtv(Dt[a], vrel))
+                flat.append(ea2 * mu * vt[a])
+                flat += zt[:a] + (sigma,) + zt[a + 1:] + p_r_pad
+                flat.append(p_t[a])
+                if has1:
+                    flat += V.vW(cta, S1.w)
+                if has2:
+                    flat += cta + V.cross(r22, cta)
+                if has1:
+                    flat += cta + V.cross(r11, cta)
+            if torsion:
+                # e_r mu p_n (n . w_rel) + p~_r sigma; d w_rel = EW2 - EW1
+                cr = e_r * mu * p_n
+                crn = V.scale(cr, n)
+                flat += z2 + V.scale(cr, wrel) + (e_r * mu * wn,) + zt + (sigma, p_r) + z1
+                if has2:
+                    flat += zd + crn
+                if has1:
+                    flat += zd + crn
+            flat += z2 + zd                                            # the cone row
+            flat.append(2.0 * mu * mu * p_n)
+            flat += tuple(-2.0 * pa / ea ** 2 for pa, ea in zip(p_t, e_ax)) + ((-2.0 * p_r,) if torsion else ())
+            flat.append(0.0)
+            flat += z1 + (pl.zvw if has2 else ()) + (pl.zvw if has1 else ())
+            C = np.fromiter(flat, float, len(flat)).reshape(-1, pl.K2)
+            J[pl.fric_rows, pl.cols] = C @ B2
+        # generalized impulses of P = s_p (p_n n + sum_a p_t[a] t_a) and tau = s_p e_r p_r n:
+        # rows -sign (d(r x P + tau); dP), with dP = DPn dn + s_p (n, t_a at p_n, p_t) and
+        # d(r x P) = X(r)^T dP - X(P)^T DR = ... - sign X(P)^T (sign DR), sign DR in the window
+        if has1 or has2:
+            DPn = _dP_dn(s_p * p_n, [s_p * pa for pa in p_t], Dt if fr else (), d)
+            sn, st = V.scale(s_p, n), ([V.scale(s_p, ta) for ta in tang] if fr else [])
+            c_tau, ern = s_p * e_r * p_r, V.scale(s_p * e_r, n)
+            imp_end = (0.0,) * (pl.n_imp - d)                          # p_r, sigma
+            # force rows: dn columns DPn, impulse columns s_p n, s_p t_a (p_r and sigma: none)
+            vcore = [(*dp, *pc, *imp_end) for dp, pc in zip(DPn, zip(sn, *st))]
+            # moment rows: impulse column p_r carries s_p e_r n (tau), sigma none
+            wtail = [(x, 0.0) for x in ern] if torsion else [(0.0,) if fr else ()] * pl.dth
+            XPT = {1.0: V.XT(V.scale(-1.0, P)), -1.0: V.XT(P)}         # -sign X(P)^T
+            for side, r in ((side2, r22), (side1, r11)):
+                if side is None:
+                    continue
+                XD = V.mm(V.XT(r), DPn)                                # X(r)^T dP / dn
+                if torsion:
+                    XD = [V.add(row, Ii) for row, Ii in zip(XD, V.sI(c_tau))]   # + d tau / dn
+                moments = zip(V.cross(r, sn), *[V.cross(r, x) for x in st])   # r x (s_p n), r x (s_p t_a)
+                wrows = [(dr, (*xd, *mc, *tl)) for dr, xd, mc, tl in zip(XPT[side.sign], XD, moments, wtail)]
+                rows_ = wrows + [(zd, v) for v in vcore] if side.free else [(zd, v) for v in vcore] + wrows
+                flat = []
+                if side is side2:
+                    for drc, rest in rows_:
+                        flat += drc + rest
+                else:
+                    for drc, rest in rows_:
+                        flat += rest + drc
+                C = np.fromiter(flat, float, len(flat)).reshape(-1, 2 * d + pl.n_imp)
+                if side.sign > 0.0:
+                    J[side.vs, pl.cols] -= C @ side.B2w
+                else:
+                    J[side.vs, pl.cols] += C @ side.B2w
+        yield
 
     # -- reading the solution --------------------------------------------------------------------
     def unpack_pair(self, z, k) -> PairState:
@@ -672,6 +1368,13 @@ class StepProblem:
 _EMPTY = np.zeros(0)
 _ZERO3 = np.zeros(3)
 _EYE = {2: np.eye(2), 3: np.eye(3)}
+_ROT90_ROWS = ((0.0, -1.0), (1.0, 0.0))
+
+
+def _report_arrays(report):
+    a1, a2, n, tang, gap, vrel = report
+    return (np.array(a1), np.array(a2), np.array(n), np.array(tang), float(gap),
+            None if vrel is None else np.array(vrel))
 
 
 def _as_slice(index):
@@ -679,6 +1382,70 @@ def _as_slice(index):
     if len(index) == 0:
         return slice(0, 0)
     return slice(int(index[0]), int(index[-1]) + 1)
+
+
+def _normalizer(n, nrm):
+    """Rows of (I - n n^T) / nrm: the derivative of N / |N| at N = nrm n."""
+    if len(n) == 3:
+        n0, n1, n2 = n
+        return (((1.0 - n0 * n0) / nrm, -n0 * n1 / nrm, -n0 * n2 / nrm),
+                (-n1 * n0 / nrm, (1.0 - n1 * n1) / nrm, -n1 * n2 / nrm),
+                (-n2 * n0 / nrm, -n2 * n1 / nrm, (1.0 - n2 * n2) / nrm))
+    n0, n1 = n
+    return (((1.0 - n0 * n0) / nrm, -n0 * n1 / nrm), (-n1 * n0 / nrm, (1.0 - n1 * n1) / nrm))
+
+
+def _tangent_derivatives(n, e, en, t, nu, o):
+    """Rows of dt/dn and do/dn for t = u / |u|, u = e - (e.n) n, o = n x t (nu = |u|, en = e.n):
+    du/dn = -n e^T - (e.n) I, dt/dn = Q du/dn with Q = (I - t t^T) / nu, do/dn = -[t]x + [n]x dt/dn.
+    Written with q = Q n and [n]x Q = ([n]x - o t^T) / nu as sums of outer products."""
+    n0, n1, n2 = n
+    e0, e1, e2 = e
+    t0, t1, t2 = t
+    o0, o1, o2 = o
+    tn = t0 * n0 + t1 * n1 + t2 * n2
+    q0, q1, q2 = (n0 - tn * t0) / nu, (n1 - tn * t1) / nu, (n2 - tn * t2) / nu
+    k = en / nu
+    # dt/dn = -q e^T - k (I - t t^T)
+    dt = ((-q0 * e0 - k * (1.0 - t0 * t0), -q0 * e1 + k * t0 * t1, -q0 * e2 + k * t0 * t2),
+          (-q1 * e0 + k * t1 * t0, -q1 * e1 - k * (1.0 - t1 * t1), -q1 * e2 + k * t1 * t2),
+          (-q2 * e0 + k * t2 * t0, -q2 * e1 + k * t2 * t1, -q2 * e2 - k * (1.0 - t2 * t2)))
+    # do/dn = -[t]x - (n x q) e^T - k ([n]x - o t^T)
+    w0, w1, w2 = n1 * q2 - n2 * q1, n2 * q0 - n0 * q2, n0 * q1 - n1 * q0
+    do = ((-w0 * e0 + k * o0 * t0, t2 - w0 * e1 - k * (-n2 - o0 * t1), -t1 - w0 * e2 - k * (n1 - o0 * t2)),
+          (-t2 - w1 * e0 - k * (n2 - o1 * t0), -w1 * e1 + k * o1 * t1, t0 - w1 * e2 - k * (-n0 - o1 * t2)),
+          (t1 - w2 * e0 - k * (-n1 - o2 * t0), -t0 - w2 * e1 - k * (n0 - o2 * t1), -w2 * e2 + k * o2 * t2))
+    return dt, do
+
+
+def _dP_dn(s, c, mats, d):
+    """Rows of s I + sum_a c[a] mats[a] (dP/dn = s_p p_n I + sum_a s_p p_t[a] dt_a/dn)."""
+    if not mats:
+        return ((s, 0.0, 0.0), (0.0, s, 0.0), (0.0, 0.0, s)) if d == 3 else ((s, 0.0), (0.0, s))
+    if d == 2:                                          # dt/dn = the 90-degree rotation
+        return ((s, -c[0]), (c[0], s))
+    c0, c1 = c
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = mats[0]
+    (b00, b01, b02), (b10, b11, b12), (b20, b21, b22) = mats[1]
+    return ((s + c0 * a00 + c1 * b00, c0 * a01 + c1 * b01, c0 * a02 + c1 * b02),
+            (c0 * a10 + c1 * b10, s + c0 * a11 + c1 * b11, c0 * a12 + c1 * b12),
+            (c0 * a20 + c1 * b20, c0 * a21 + c1 * b21, s + c0 * a22 + c1 * b22))
+
+
+def _curvature(s, M, N, r, V, moving):
+    """Rows of H = s I + M (M None: 0) and, for a moving body, C = X(N) - H X(r): dN = H DR + C TH.
+    Row i of M X(r) is r x M_i (y^T X(r) = (r x y)^T), so no matrix product is needed."""
+    H = V.sI(s) if M is None else tuple(V.axpy(s, Ii, Mi) for Ii, Mi in zip(V.I, M))
+    if not moving:
+        return H, ((),) * len(N)
+    if M is None:
+        return H, V.X(V.axpy(-s, r, N))                # X is linear: X(N) - s X(r) = X(N - s r)
+    XN, Xr = V.X(N), V.X(r)
+    return H, tuple(tuple(xa - s * xb - c for xa, xb, c in zip(xn, xr, V.cross(r, Mi)))
+                    for xn, xr, Mi in zip(XN, Xr, M))
+
+
+_NEG_I = {2: ((-1.0, 0.0), (0.0, -1.0)), 3: ((-1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, -1.0))}
 
 
 def _relative_velocity(z, P1, P2, v1s, v2s, a1, a2, T1, T2, sl, jac):
@@ -706,14 +1473,14 @@ def _tangents(nhat, axis, jac=True):
     d = len(nhat)
     if d == 2:
         return (_ROT90 @ nhat)[None, :], [_ROT90]
-    e = axis
-    u = e - (e @ nhat) * nhat
-    nu = math.sqrt(float(u @ u))
-    t = u / nu
+    n = tuple(float(x) for x in nhat)
+    e = tuple(float(x) for x in axis)
+    en = _V3.dot(e, n)
+    u = _V3.axpy(-en, n, e)
+    nu = math.sqrt(_V3.dot(u, u))
+    t = _V3.scale(1.0 / nu, u)
+    o = _V3.cross(n, t)
+    tang = np.array([t, o])
     if not jac:
-        return np.array([t, np.cross(nhat, t)]), None
-    du_dn = -np.outer(nhat, e) - (e @ nhat) * np.eye(3)
-    dt_dn = (np.eye(3) - np.outer(t, t)) / nu @ du_dn
-    o = np.cross(nhat, t)
-    do_dn = -_skew(t) + _skew(nhat) @ dt_dn
-    return np.array([t, o]), [dt_dn, do_dn]
+        return tang, None
+    return tang, [np.array(m) for m in _tangent_derivatives(n, e, en, t, nu, o)]

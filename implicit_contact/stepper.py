@@ -308,9 +308,12 @@ class ImplicitContactStepper:
         # undetermined, a singular Jacobian) loses them if the solve failed.
         previous = None            # (problem, x) to warm start a re-solve from
         sliding = []
-        for _attempt in range(5):
+        reseeded = None
+        for _attempt in range(6):
             problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
-            if previous is None:
+            if reseeded is not None:
+                z0, reseeded = reseeded, None
+            elif previous is None:
                 z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
             else:
                 z0 = _transfer(*previous, problem, sliding)
@@ -327,12 +330,18 @@ class ImplicitContactStepper:
                 for k in on + off:
                     specs[k].with_friction = k in on
                 continue
-            if result.success or previous is None or sliding:
+            if result.success:
                 break
-            # a failed solve from a frictionless solution: restart the stuck contacts sliding
-            sliding = _stuck_sliding(problem, x)
-            if not sliding:
-                break
+            if previous is not None and not sliding:
+                # a failed solve from a frictionless solution: restart the stuck contacts sliding
+                sliding = _stuck_sliding(problem, x)
+                if sliding:
+                    continue
+            if _attempt < 5 and not getattr(problem, "_reseeded", False):
+                # restart from exact closest points at the poses the failed iterate implies
+                reseeded = _reseed(problem, x, self.options.contact_tolerance)
+                continue
+            break
         layout = problem.layout
         if not result.success:
             return self._failure(problem, result, specs, t0, h)
@@ -691,3 +700,34 @@ def _central_touch_point(spec, P1, P2, a, normal, tol):
         if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
             return x
     return a
+
+
+def _reseed(problem, x, tol):
+    """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
+    replace every pair's closest points and multipliers by the static solution (closest.py) at
+    the poses those velocities imply.
+
+    Newton on the KKT rows of a polytope can stall on a vertex that is no longer the deepest one
+    (a box slapping flat turns its contact point over to the far edge within one step); the
+    static problem is convex and its solver finds the right vertex, face or deepest point."""
+    from .closest import closest_points
+    z = x.copy()
+    for k, spec in enumerate(problem.specs):
+        P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
+        first, second = spec.objects
+        res = closest_points(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
+        if not res.success:
+            continue
+        a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+        normal = np.asarray(res.normal, float)
+        if res.overlapping or res.distance <= tol:
+            a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
+        l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
+        if k1 != spec.k1:
+            continue             # the layout's k1 is fixed for this problem; keep the old seed
+        sl = problem.layout.pairs[k]
+        problem.pack_points(z, k, a1, a2)
+        z[sl.l1s] = l1
+        z[sl.l2s] = l2
+    problem._reseeded = True
+    return z

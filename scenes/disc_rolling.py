@@ -6,7 +6,7 @@ stays 6.75 J to round-off while it rolls (a polygonal disc in DART's own stepper
 started sliding (v = [-3, 0, 0]) stops slipping at t* = |v0| / (3 mu g) = 0.2548 s and then rolls
 with v_x = -2, omega = 2.
 
-Run: python -m scenes.disc_rolling [--slide] [--h 0.01] [--duration 5]
+Run: python -m scenes.disc_rolling [--slide] [--h 0.01] [--duration 5] [--animate]
 """
 import argparse
 from pathlib import Path
@@ -68,6 +68,7 @@ def main(argv=None):
     parser.add_argument("--h", type=float, default=H)
     parser.add_argument("--duration", type=float, default=5.0)
     parser.add_argument("--slide", action="store_true", help="start sliding: v0 = [-3, 0, 0]")
+    parser.add_argument("--animate", action="store_true", help="also write scenes/out/<name>.gif")
     args = parser.parse_args(argv)
     v0 = (-3.0, 0.0, 0.0) if args.slide else V0
     traj = simulate(args.duration, args.h, v0)
@@ -96,9 +97,16 @@ def main(argv=None):
     ax.set_title("Does the rolling disc keep its kinetic energy?")
     ax.legend()
     fig.tight_layout()
-    path = out / ("disc_sliding.png" if args.slide else "disc_rolling.png")
+    name = "disc_sliding" if args.slide else "disc_rolling"
+    path = out / f"{name}.png"
     fig.savefig(path, dpi=120)
     print(f"wrote {path}")
+    if args.animate:
+        from implicit_contact import animate as an
+        gif = an.animate(traj, [an.Disc(RADIUS), an.HalfPlane((0.0, 1.0), 0.0)], out / f"{name}.gif",
+                         stride=max(1, len(t) // 150), follow=0, window=(6.0, 3.0),
+                         title="Disc on the ground (implicit stepper)")
+        print(f"wrote {gif}")
 
 
 if __name__ == "__main__":

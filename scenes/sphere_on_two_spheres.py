@@ -9,7 +9,7 @@ are lost. The paper reports about 3.0 s (contact 2 starts sliding), 3.2 s (conta
 The spheres are DART SphereShapes with collision aspects, so the same world also runs with DART's
 own stepper. Torsional friction e_r = 0.3 is the implicit stepper's (DART has none).
 
-Run: python -m scenes.sphere_on_two_spheres [--h 0.01] [--duration 5]
+Run: python -m scenes.sphere_on_two_spheres [--h 0.01] [--duration 5] [--animate]
 """
 import argparse
 from dataclasses import dataclass
@@ -133,6 +133,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--h", type=float, default=H)
     parser.add_argument("--duration", type=float, default=5.0)
+    parser.add_argument("--animate", action="store_true", help="also write scenes/out/sphere_on_two_spheres.gif")
     args = parser.parse_args(argv)
     traj = simulate(args.duration, args.h)
     t, q, v, ke = traj.arrays()
@@ -171,6 +172,12 @@ def main(argv=None):
     path = out / "sphere_on_two_spheres.png"
     fig.savefig(path, dpi=120)
     print(f"wrote {path}")
+    if args.animate:
+        from implicit_contact import animate as an
+        bodies = [an.Sphere(RADIUS, q_index=0), an.Sphere(BIG[0], center=BIG[1]), an.Sphere(SMALL[0], center=SMALL[1])]
+        gif = an.animate(traj, bodies, out / "sphere_on_two_spheres.gif", plane="yz", stride=max(1, len(t) // 150),
+                         follow=0, window=(8.0, 6.0), title="Sphere pushed across two spheres, y-z view")
+        print(f"wrote {gif}")
 
 
 if __name__ == "__main__":

@@ -133,8 +133,9 @@ def _hard_world():
 
 
 def _crippled(policy):
-    options = ic.StepperOptions(solver=ncp.SolverOptions(tol=1e-10, max_iterations=1, descent_rho=1e-24),
-                                max_halvings=2)
+    # no Newton iteration at all (0 evaluates the start only), also on retried substeps
+    options = ic.StepperOptions(solver=ncp.SolverOptions(tol=1e-10, max_iterations=0, descent_rho=1e-24),
+                                max_halvings=2, retry_iterations_factor=1)
     world = _hard_world()
     return world, ic.ImplicitContactStepper(world, on_failure=policy, options=options)
 
