@@ -402,12 +402,21 @@ def restore(world, snap: WorldSnapshot) -> None:
     world.setTime(snap.time)
 
 
-def write_velocities_and_integrate(rec: SkeletonRecord, v_next: np.ndarray, v_prev: np.ndarray, h: float):
-    """Write v+ and let DART integrate q+ = q (+) h v+ (its integrator is the one the formulation models)."""
+def write_velocities_and_integrate(rec: SkeletonRecord, v_next: np.ndarray, v_prev: np.ndarray, h: float,
+                                   midpoint: bool = False):
+    """Write v+ and let DART integrate q+ = q (+) h v+ (its integrator is the one the formulation
+    models); midpoint: q+ = (q (+) h/2 v) (+) h/2 v+, the trapezoidal rule of the quasi-rigid
+    'midpoint' scheme."""
     skel = rec.skeleton
-    skel.setVelocities(v_next)
+    if midpoint:
+        skel.setVelocities(v_prev)
+        skel.integratePositions(0.5 * h)
+        skel.setVelocities(v_next)
+        skel.integratePositions(0.5 * h)
+    else:
+        skel.setVelocities(v_next)
+        skel.integratePositions(h)
     skel.setAccelerations((v_next - v_prev) / h)
-    skel.integratePositions(h)
 
 
 def finish_step(world, h: float) -> None:

@@ -636,6 +636,9 @@ class PairSpec:
     tangent_axis: np.ndarray | None = None
     impulse_scale: float = 1.0
     objects: tuple = ()        # the stepper's own records of the two pieces, for reports
+    compliance: object = None  # an ic.Compliance: a quasi-rigid pair (see quasi_rigid.py)
+    compliant_side: int = 2    # which body carries the deformed layer
+    delta_prev: float = 0.0    # its normal deflection at l
 
 
 @dataclass
@@ -654,6 +657,9 @@ class PairSlots:
     rows_l2: np.ndarray
     row_n: int
     rows_fric: np.ndarray      # (d-1) + torsion rows, then sigma row = sigma
+    dbar: int = -1             # quasi-rigid pairs: algebraic offset, deflection, core impulse
+    dn: int = -1               # (each row shares its unknown's index: (35), spring, core)
+    p_nr: int = -1
 
     def __post_init__(self):
         # the same blocks as slices (every block is contiguous), for fast reads and writes
@@ -681,6 +687,7 @@ def _position_rows(layout: Layout):
         parts = [np.zeros(0, int)]
         for sl in layout.pairs:
             parts += [sl.rows_geo[: len(sl.rows_geo) // 2], sl.rows_l1, sl.rows_l2, [sl.row_n]]
+            parts += [[r] for r in (sl.dbar, sl.p_nr) if r >= 0]     # (35) and the core: lengths
         rows = layout.__dict__["_position_rows"] = np.concatenate(parts).astype(int)
     return rows
 
@@ -788,8 +795,16 @@ def build_layout(nv_per_skeleton: list, specs: list) -> Layout:
             sigma = col; col += 1
             lower.append(0.0); upper.append(np.inf)
             rows_fric = np.arange(p_t[0], col)
+        dbar = dn = p_nr = -1
+        if spec.compliance is not None:
+            dbar, dn = col, col + 1
+            col += 2
+            lower += [-np.inf, -np.inf]; upper += [np.inf, np.inf]
+            if math.isfinite(spec.compliance.delta_max):
+                p_nr = col; col += 1
+                lower.append(0.0); upper.append(np.inf)
         slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
-                               p_n, rows_fric))
+                               p_n, rows_fric, dbar, dn, p_nr))
     return Layout(col, v_index, slots, np.array(lower), np.array(upper))
 
 
@@ -1009,7 +1024,9 @@ class StepProblem:
                 R0 = tuple(map(tuple, np.asarray(kin.R0, float).tolist()))
                 base = kin.p0 if kin.kind == FREE else kin.q0
                 self._moving.append((b, kin, self._vslice[b], R0, tuple(np.asarray(base, float).tolist())))
-        self._plans = [_PairPlan(self, k, spec, sl) for k, (spec, sl) in enumerate(zip(specs, layout.pairs))]
+        from .quasi_rigid import CompliantPair
+        self._plans = [CompliantPair(self, k) if spec.compliance is not None else _PairPlan(self, k, spec, sl)
+                       for k, (spec, sl) in enumerate(zip(specs, layout.pairs))]
         self._key_f = self._key_j = None
         self._F = self._J = None
         self._reports = None       # per-pair quantities at _key_f as floats (see _pairs_at)
@@ -1089,7 +1106,8 @@ class StepProblem:
             states[b] = _body_now(kin, R0, p0, zl[vs])
         for vs, M, v, hforce in self._skel:
             F[vs] = M @ (z[vs] - v) - hforce
-        resume = [self._pair(pl, zl, states, F, need_hessians) for pl in self._plans]
+        resume = [self._pair(pl, zl, states, F, need_hessians) if isinstance(pl, _PairPlan)
+                  else pl.generator(z, F) for pl in self._plans]
         pairs = [next(g) for g in resume]
         F *= self._row_scale
         return F, pairs, resume

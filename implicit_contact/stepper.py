@@ -32,7 +32,7 @@ from . import formulation as fm
 from . import ncp
 from . import shapes as shp
 from .broadphase import Broadphase
-from .params import Friction
+from .params import Compliance, Friction
 
 
 # ---------------------------------------------------------------------------------------------
@@ -79,6 +79,9 @@ class ContactReport:
     slip: float                # |tangential slip velocity| at l+1 [m/s]
     name_a: str = ""
     name_b: str = ""
+    p_spring: float = 0.0      # quasi-rigid pairs: the layer's spring-damper impulse, eq (33)
+    p_core: float = 0.0        # the rigid core's impulse (all of p_n for a rigid pair)
+    deflection: float = 0.0    # normal deflection delta_n of the layer [m], eq (35)
 
     @property
     def active(self) -> bool:
@@ -144,6 +147,7 @@ class ImplicitContactStepper:
         self._objects = self._contact_objects()
         self._broadphase = Broadphase(len(self._objects))
         self._pair_friction = {}
+        self._pair_compliance = {}
         self._last = {}            # pair key -> dict of the last solution (warm start)
         self._layout_cache = {}
         self._retrying = False
@@ -158,6 +162,29 @@ class ImplicitContactStepper:
             raise ValueError(f"friction must be an ic.Friction, got {type(friction).__name__}")
         ia, ib = self._body_of(node_a), self._body_of(node_b)
         self._pair_friction[frozenset((ia, ib))] = friction
+
+    def set_pair_compliance(self, node_a, node_b, compliance: Compliance) -> None:
+        """Give the pair (node_a, node_b) a quasi-rigid layer (default: the bodies' own layers,
+        in series if both have one; rigid if neither has)."""
+        if not isinstance(compliance, Compliance):
+            raise ValueError(f"compliance must be an ic.Compliance, got {type(compliance).__name__}")
+        ia, ib = self._body_of(node_a), self._body_of(node_b)
+        self._pair_compliance[frozenset((ia, ib))] = compliance
+
+    def _trapezoidal_skeletons(self) -> set:
+        """All mobile skeletons when any quasi-rigid layer of the world uses the "midpoint"
+        scheme (ic.Compliance): the energy-consistent variant integrates every position with the
+        trapezoidal rule, q+ = q + h (v + v+)/2, in flight too (exact under gravity); else none."""
+        layers = [o.compliance for o in self._objects if o.compliance is not None]
+        layers += list(self._pair_compliance.values())
+        if any(c.scheme == "midpoint" for c in layers):
+            return set(range(len(self.scene.skeletons)))
+        return set()
+
+    def spring_energy(self) -> float:
+        """Energy stored in the quasi-rigid layers at the end of the last step [J]:
+        sum of k delta_n^2 / 2 over its contacts."""
+        return sum(0.5 * c["k"] * c["deflection"] ** 2 for c in self._last.values() if c["k"] > 0.0)
 
     def step(self) -> StepReport:
         """Advance the world by world.getTimeStep(); transactional (see on_failure)."""
@@ -211,7 +238,7 @@ class ImplicitContactStepper:
                     label = cs.label if not cs.label.startswith(adapter.SHAPE_NODE_PREFIX) \
                         else type(cs.shape).__name__
                     objs.append(_Object(body.index, piece, funcs, fixed_hs, cs.friction,
-                                        f"{body.name}:{label}#{len(objs)}"))
+                                        f"{body.name}:{label}#{len(objs)}", cs.compliance))
         return objs
 
     def _check_state_finite(self):
@@ -290,8 +317,9 @@ class ImplicitContactStepper:
                 margins[k] += 0.5 * h * (lin + ang * o.piece.length_scale)
         pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
         if not pairs:
+            midpoint = self._trapezoidal_skeletons()
             for s, rec in enumerate(scene.skeletons):
-                adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h)
+                adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h, midpoint=s in midpoint)
             self._last = {}
             return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
         # skeletons that take part in the MCP
@@ -351,16 +379,23 @@ class ImplicitContactStepper:
         for k, spec in enumerate(specs):
             st = problem.unpack_pair(z, k)
             contacts.append(self._contact_report(problem, z, k, spec, st))
+            sl = layout.pairs[k]
             new_last[spec.key] = {"a1": st.a1, "a2": st.a2, "l1": st.l1, "l2": st.l2, "p_n": st.p_n,
                                   "p_t": st.p_t, "p_r": st.p_r, "sigma": st.sigma, "k1": spec.k1,
-                                  "axis": spec.tangent_axis}
+                                  "axis": spec.tangent_axis,
+                                  "dbar": float(z[sl.dbar]) if sl.dbar >= 0 else 0.0,
+                                  "deflection": float(z[sl.dn]) if sl.dn >= 0 else 0.0,
+                                  "deflection_prev": spec.delta_prev,
+                                  "p_nr": spec.impulse_scale * float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0,
+                                  "k": spec.compliance.k_n if spec.compliance is not None else 0.0}
         bad = self._check_solution(contacts, specs)
         if bad:
             return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
                               t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", layout.n)
+        midpoint = self._trapezoidal_skeletons()
         for s, rec in enumerate(scene.skeletons):
             v_next = z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s]
-            adapter.write_velocities_and_integrate(rec, v_next, states[s].v, h)
+            adapter.write_velocities_and_integrate(rec, v_next, states[s].v, h, midpoint=s in midpoint)
         self._last = new_last
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, layout.n)
@@ -389,18 +424,31 @@ class ImplicitContactStepper:
 
     def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos):
         scene = self.scene
-        signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim) for sp in specs))
+        signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim,
+                                       sp.obj1.fixed_halfspace, sp.obj2.fixed_halfspace,
+                                       None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
+                                      for sp in specs))
         layout = self._layout_cache.get(signature)
         if layout is None:
             if len(self._layout_cache) > 256:       # scenes whose pairs keep changing
                 self._layout_cache.clear()
             layout = self._layout_cache[signature] = fm.build_layout(nv, specs)
         kins = []
+        midpoint = self._trapezoidal_skeletons()
         for b in body_ids:
             rec = scene.bodies[b]
             if rec.kind == adapter.FIXED:
                 R, p = poses_now[b]
                 kins.append(fm.BodyKinematics(fm.FIXED, rec.dim, R, p, None, h, None))
+            elif rec.skeleton_index in midpoint:
+                # trapezoidal positions, q+ = q + h (v + v+)/2: the pose after half a step at v,
+                # then half a step at the unknown v+
+                s = rec.skeleton_index
+                st = states[s]
+                R_half, p_half = _predict_pose(rec.kind, st, st.v, h / 2)
+                q_half = st.q + 0.5 * h * st.v if rec.kind == adapter.PLANAR else None
+                kins.append(fm.BodyKinematics(rec.kind, rec.dim, R_half, p_half, q_half, h / 2,
+                                              layout.v_index[sk_pos[s]], rec.body_node.getMass()))
             else:
                 s = rec.skeleton_index
                 st = states[s]
@@ -438,9 +486,19 @@ class ImplicitContactStepper:
         if dim == 3:
             axis = last["axis"] if last is not None else None
         k1 = last["k1"] if last is not None else 0
-        o1 = fm.ContactObject(body_pos[first.body], first.funcs, first.fixed_halfspace, first.label)
-        o2 = fm.ContactObject(body_pos[second.body], second.funcs, second.fixed_halfspace, second.label)
-        return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second))
+        compliance = self._pair_compliance.get(frozenset((b1.index, b2.index)),
+                                               Compliance.series(first.compliance, second.compliance))
+        # the deformed layer sits on the compliant body (body 2 if both or only a pair setting);
+        # a compliant half-space's closest point is not on its undeformed plane: no reduction
+        side = 1 if (compliance is not None and first.compliance is not None
+                     and second.compliance is None) else 2
+        red1 = first.fixed_halfspace and not (compliance is not None and side == 1)
+        red2 = second.fixed_halfspace and not (compliance is not None and side == 2)
+        o1 = fm.ContactObject(body_pos[first.body], first.funcs, red1, first.label)
+        o2 = fm.ContactObject(body_pos[second.body], second.funcs, red2, second.label)
+        delta_prev = last["deflection"] if last is not None else 0.0
+        return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
+                           compliance, side, delta_prev)
 
     def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h):
         from .closest import closest_points
@@ -462,9 +520,9 @@ class ImplicitContactStepper:
             b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
             d = spec.dim
             last = self._last.get(spec.key)
-            shift = _contact_shift(b1, b2, states, h)[:d]
             if last is not None:
-                a1, a2 = last["a1"] + shift, last["a2"] + shift
+                s1, s2 = _contact_shift(b1, b2, states, h, last["a2"] - last["a1"], d)
+                a1, a2 = last["a1"] + s1, last["a2"] + s2
                 l1, l2 = last["l1"], last["l2"]
                 p_n, p_t, p_r, sigma = last["p_n"], last["p_t"], last["p_r"], last["sigma"]
             else:
@@ -492,6 +550,18 @@ class ImplicitContactStepper:
                 if sl.p_r >= 0:
                     z[sl.p_r] = p_r / (spec.impulse_scale * spec.friction.e_r)
                 z[sl.sigma] = sigma
+            if sl.dbar >= 0 and last is not None:
+                # the layer keeps deforming at its last rate; the spring follows (eq 49)
+                rate = last["deflection"] - last["deflection_prev"]
+                dn = last["deflection"] + rate
+                z[sl.dbar], z[sl.dn] = last["dbar"] + rate, dn
+                comp = spec.compliance
+                stiff = 0.5 * (dn + spec.delta_prev) if comp.scheme == "midpoint" else dn
+                spring = h * comp.k_n * stiff + comp.c_n * (dn - spec.delta_prev)
+                if sl.p_nr >= 0:
+                    z[sl.p_nr] = last["p_nr"] / spec.impulse_scale
+                if last["p_n"] > 0.0 and spring > 0.0:
+                    z[sl.p_n] = spring / spec.impulse_scale + z[sl.p_nr] * (sl.p_nr >= 0)
         return z
 
     def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
@@ -503,8 +573,14 @@ class ImplicitContactStepper:
         po = float(p_t[1]) if len(p_t) > 1 else 0.0
         vrel = problem.relative_velocity(z, k)
         slip = float(np.linalg.norm(st.tangents @ vrel))
+        sl = problem.layout.pairs[k]
+        if spec.compliance is None:          # rigid: all of the normal impulse is the core's
+            p_core, deflection = st.p_n, 0.0
+        else:
+            p_core = spec.impulse_scale * float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0
+            deflection = float(z[sl.dn])
         return ContactReport(b1.body_node, b2.body_node, st.a1, st.a2, st.normal, st.gap, st.p_n, pt, po,
-                             st.p_r, st.sigma, slip, b1.name, b2.name)
+                             st.p_r, st.sigma, slip, b1.name, b2.name, st.p_n - p_core, p_core, deflection)
 
     def _check_solution(self, contacts, specs) -> str:
         tol = self.options.contact_tolerance
@@ -541,11 +617,13 @@ class ImplicitContactStepper:
 class _Object:
     """One convex piece of one body, with a cheap world box for the broadphase: the exact AABB
     for unbounded pieces and fixed bodies (recomputed only when the pose changes), and for moving
-    bounded pieces the box of a bounding sphere (one rotation of the piece's box centre)."""
+    bounded pieces the world AABB of the piece's rotated body-frame box, centre R c + p and half
+    extents |R| e (tight for a disc or an axis-aligned body, at most sqrt(3) wider otherwise)."""
 
-    def __init__(self, body, piece, funcs, fixed_halfspace, friction, label):
+    def __init__(self, body, piece, funcs, fixed_halfspace, friction, label, compliance=None):
         self.body, self.piece, self.funcs = body, piece, funcs
         self.fixed_halfspace, self.friction, self.label = fixed_halfspace, friction, label
+        self.compliance = compliance
         self.key = label
         d = piece.dim
         self._sphere = None
@@ -553,17 +631,20 @@ class _Object:
             lo, hi = (np.asarray(v, float) for v in piece.aabb(np.eye(d), np.zeros(d)))
             centre = np.zeros(3)
             centre[:d] = 0.5 * (lo + hi)
-            self._sphere = (centre, 0.5 * float(np.linalg.norm(hi - lo)))
+            half = np.zeros(3)
+            half[:d] = 0.5 * (hi - lo)
+            self._sphere = (centre, half)
         self._last = None
 
     def box(self, pose):
         R, p = pose
         if self._sphere is not None:
-            centre, radius = self._sphere
+            centre, half = self._sphere
             c = R @ centre + p
+            e = np.abs(R) @ half
             if self.piece.dim == 2:
-                return np.array([c[0] - radius, c[1] - radius, 0.0]), np.array([c[0] + radius, c[1] + radius, 0.0])
-            return c - radius, c + radius
+                e[2] = 0.0
+            return c - e, c + e
         if self._last is not None and np.array_equal(self._last[0], R) and np.array_equal(self._last[1], p):
             return self._last[2]
         out = _aabb3(self.piece, pose)
@@ -626,17 +707,25 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
     return l1, l2, k1
 
 
-def _contact_shift(b1, b2, states, h):
-    """Warm start: a contact point travels with its bodies' translation (exact for rolling)."""
-    vel = []
-    for b in (b1, b2):
+def _contact_shift(b1, b2, states, h, gap_vector, d):
+    """Warm start: how far the last closest points a1, a2 travel in one step.
+
+    Each point moves with its own body's translation; the point on a fixed body also slides
+    along its surface with the other body's tangential translation (the contact point of a
+    rolling disc travels along the ground; a falling body's target point stays put). Exact for
+    steady rolling on flat ground."""
+    def velocity(b):
         if b.kind == adapter.FIXED:
-            continue
+            return np.zeros(d)
         v = states[b.skeleton_index].v
-        vel.append(np.array([v[0], v[1], 0.0]) if b.kind == adapter.PLANAR else v[3:6])
-    if not vel:
-        return np.zeros(3)
-    return h * np.mean(vel, axis=0)
+        return np.array([v[0], v[1]]) if b.kind == adapter.PLANAR else v[3:6].copy()
+    v1, v2 = velocity(b1), velocity(b2)
+    norm = np.linalg.norm(gap_vector)
+    n = gap_vector / norm if norm > 1e-12 else None
+    tangential = (lambda v: v - (v @ n) * n) if n is not None else (lambda v: v)
+    s1 = h * (v1 + (tangential(v2) if b1.kind == adapter.FIXED else 0.0))
+    s2 = h * (v2 + (tangential(v1) if b2.kind == adapter.FIXED else 0.0))
+    return s1, s2
 
 
 def _transfer(old, x, new, sliding=()) -> np.ndarray:
@@ -653,6 +742,9 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
         z[sn.p_n] = x[so.p_n]
+        for name in ("dbar", "dn", "p_nr"):
+            if getattr(sn, name) >= 0 and getattr(so, name) >= 0:
+                z[getattr(sn, name)] = x[getattr(so, name)]
         if sn.sigma < 0:
             continue
         if so.sigma >= 0 and k not in sliding:   # both layouts have this pair's friction rows

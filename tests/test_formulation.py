@@ -1,10 +1,12 @@
 """The step residual of [GI] eqs (15)-(22) and its analytic Jacobian against central differences."""
+import math
+
 import numpy as np
 import pytest
 
 from implicit_contact import formulation as fm
 from implicit_contact import shapes as shp
-from implicit_contact.params import Friction
+from implicit_contact.params import Compliance, Friction
 
 H = 0.01
 EPS_FD = 1e-6            # central-difference step
@@ -91,3 +93,60 @@ def test_layout_builds_only_the_rows_the_pair_needs():
     assert n3(Friction(0.2, 1, 1, 0.3)) == 6 + 3 + 2 + 2 + 1 + 2 + 1 + 1
     assert n3(Friction(0.2, 1, 1, 0.0)) == 6 + 3 + 2 + 2 + 1 + 2 + 1
     assert n3(Friction(0.0)) == 6 + 3 + 2 + 2 + 1
+
+
+COMPLIANT_CASES = [
+    # (dim, kinds, piece 1, piece 2, compliant side, friction, compliance)
+    (2, ("planar", "fixed"), shp.Disc(1.0), shp.HalfPlane([0.0, 1.0], 0.0), 2, Friction(0.0),
+     Compliance(1000.0, 0.0, 0.05)),
+    (2, ("planar", "planar"), shp.Ellipse([1.0, 0.5]), shp.Disc(0.6), 2, Friction(0.4),
+     Compliance(500.0, 3.0, math.inf, "midpoint")),
+    (3, ("free", "fixed"), shp.Sphere(0.5), shp.Ellipsoid([2.0, 1.5, 1.0]), 2, Friction(0.3, 1.0, 0.8, 0.2),
+     Compliance(1e4, 10.0, 0.01)),
+    (3, ("free", "free"), shp.Sphere(0.4), shp.Intersection.box([0.3, 0.2, 0.1]), 1, Friction(0.3),
+     Compliance(1e3, 0.0, 0.02)),
+]
+
+
+@pytest.mark.parametrize("case", range(len(COMPLIANT_CASES)))
+def test_quasi_rigid_step_jacobian_matches_central_differences(case):
+    dim, kinds, piece1, piece2, side, friction, compliance = COMPLIANT_CASES[case]
+    rng = np.random.default_rng(100 + case)
+    bodies, nv, col = [], [], 0
+    for kind in kinds:
+        kin, k = _body(kind, dim, rng, col)
+        bodies.append(kin)
+        if k:
+            nv.append(k)
+            col += k
+    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
+    o2 = fm.ContactObject(1, tuple(piece2.functions), False)
+    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
+    spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05,
+                       compliance=compliance, compliant_side=side, delta_prev=0.003)
+    layout = fm.build_layout(nv, [spec])
+    blocks = []
+    for b, kin in enumerate(bodies):
+        if kin.vindex is not None:
+            k = len(kin.vindex)
+            A = rng.normal(size=(k, k))
+            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
+    z = 0.3 * rng.normal(size=layout.n)
+    sl = layout.pairs[0]
+    for idx in (sl.l1, sl.l2):
+        z[idx] = np.abs(z[idx]) + 0.5
+    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
+    z[sl.dn] = 0.01
+    if sl.sigma >= 0:
+        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
+    J = problem.jac(z).copy()
+    J_fd = np.empty_like(J)
+    for i in range(layout.n):
+        e = np.zeros(layout.n)
+        e[i] = EPS_FD
+        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * EPS_FD)
+    scale = np.maximum(1.0, np.abs(J_fd))
+    assert np.max(np.abs(J - J_fd) / scale) <= ATOL_FD
+    # the layer adds dbar, delta_n and, with a finite core, p_nr
+    assert sl.dbar >= 0 and sl.dn >= 0 and (sl.p_nr >= 0) == math.isfinite(compliance.delta_max)
