@@ -14,7 +14,7 @@ What to look for, against the analytic solution (printed beside the simulation):
 With the paper's scheme (eq 49, spring at the end of the step) the total energy drifts down by
 about h/2 (g^2 t_flight + k^2 A^2 tau) per bounce; the "midpoint" scheme keeps it (see README).
 
-Run: python -m scenes.disc_on_quasi_rigid_plane [--scheme paper|midpoint] [--h 1e-4] [--duration 1]
+Run: python -m scenes.disc_on_quasi_rigid_plane [--scheme paper|midpoint] [--h 1e-4] [--duration 1] [--animate]
 """
 import argparse
 import math
@@ -146,6 +146,7 @@ def main(argv=None):
     parser.add_argument("--h", type=float, default=H)
     parser.add_argument("--duration", type=float, default=1.0)
     parser.add_argument("--scheme", choices=ic.params.SCHEMES, default="paper")
+    parser.add_argument("--animate", action="store_true", help="also write scenes/out/<name>.gif")
     args = parser.parse_args(argv)
     import matplotlib
     matplotlib.use("Agg")
@@ -192,6 +193,12 @@ def main(argv=None):
         path = out / f"quasi_rigid_dmax{delta_max:g}_{args.scheme}.png"
         fig.savefig(path, dpi=110)
         print(f"  wrote {path}")
+        if args.animate:
+            from implicit_contact import animate as an
+            gif = an.animate(rec.traj, [an.Disc(RADIUS), an.HalfPlane((0.0, 1.0), 0.0)],
+                             out / f"quasi_rigid_dmax{delta_max:g}_{args.scheme}.gif",
+                             stride=max(1, int(round(0.01 / args.h))))
+            print(f"  wrote {gif}")
 
 
 if __name__ == "__main__":
