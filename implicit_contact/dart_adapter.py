@@ -11,9 +11,25 @@ position integration (`integratePositions`), world time. What this module adds:
   of three functions), Box (an intersection of six half-spaces), Plane (a half-space). On a
   PlanarJoint body a z-axis cylinder or a sphere becomes a disc and a box a rectangle, so the
   paper's planar scenes can use DART primitives.
-* Body kinds: a FreeJoint root (6 dofs), a PlanarJoint root in the XY plane (3 dofs [x, y, theta]),
-  and fixed bodies (WeldJoint roots, immobile skeletons). Everything else is refused when the
-  stepper is built, with a sentence saying what is supported.
+* Body kinds: a single-body skeleton with a FreeJoint root (6 dofs) or a PlanarJoint root in the
+  XY plane (3 dofs [x, y, theta]) keeps the fast kinds FREE / PLANAR; fixed bodies (WeldJoint
+  roots, immobile skeletons, and bodies of a mobile skeleton that no dof moves) are FIXED; every
+  other body of a mobile skeleton is ARTICULATED (3D shapes): multi-body skeletons and other roots,
+  with Revolute, Prismatic, Screw, Universal, Ball, Euler, Translational, TranslationalJoint2D,
+  Planar, Free and Weld joints. An ARTICULATED body carries DART's world Jacobian of its origin at
+  l; all bodies of a skeleton share its velocity unknowns (formulation.BodyKinematics). Refused at
+  construction, with a sentence each: joints whose position limits are enforced (the implicit
+  stepper has no limit constraints), joints with Coulomb friction, actuators other than FORCE /
+  PASSIVE (servo, velocity, acceleration, locked and mimic joints are DART constraints), and
+  meshes. Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
+  default).
+* Generalized force at l: tau (commands, already clamped by DART to the force limits) + tau_ext -
+  (Coriolis + gravity), and joint springs and dampers as DART applies them: DART treats them
+  implicitly (GenericJoint: the spring acts at q + h v+ and the damper at v+, i.e. h D + h^2 K is
+  added to the articulated inertia), and so does this module: it returns M + h D + h^2 K as the
+  mass matrix and -K (q - q_rest + h v) - D v in the force, so M (v+ - v) = h force + J^T P is
+  DART's own semi-implicit step with the contact impulses added (tested: a damped pendulum in free
+  flight matches world.step() to 1e-12). K, D and q_rest are read when the stepper is built.
 
 The FreeJoint velocity convention changed between dartpy releases; this module measures it at
 start-up (``check_free_joint_convention``) and refuses a convention it was not written for.
@@ -34,6 +50,12 @@ SHAPE_NODE_PREFIX = "implicit_contact:"
 DEFAULT_DART_MU = 1.0  # DART's DynamicsAspect default friction coefficient
 
 FREE, PLANAR, FIXED = "free", "planar", "fixed"
+ARTICULATED = "articulated"
+
+# joints whose motion DART integrates with integratePositions and describes by its Jacobian
+SUPPORTED_JOINTS = ("RevoluteJoint", "PrismaticJoint", "ScrewJoint", "UniversalJoint", "BallJoint",
+                    "EulerJoint", "TranslationalJoint", "TranslationalJoint2D", "PlanarJoint",
+                    "FreeJoint", "WeldJoint")
 
 
 # --------------------------------------------------------------------------------------------
@@ -178,10 +200,11 @@ class BodyRecord:
     body_node: object
     skeleton: object
     skeleton_index: int        # index into Scene.skeletons, or -1 for a fixed body
-    kind: str                  # FREE | PLANAR | FIXED
+    kind: str                  # FREE | PLANAR | FIXED | ARTICULATED
     dim: int                   # 3, or 2 for planar bodies
     shapes: list = field(default_factory=list)
     name: str = ""
+    world_skeleton: int = -1   # index of its skeleton in the world (pairs within one are skipped)
 
 
 @dataclass
@@ -189,7 +212,9 @@ class SkeletonRecord:
     skeleton: object
     kind: str
     ndof: int
-    body_index: int            # the BodyRecord of its single body, or -1 if it has no shapes
+    body_index: int            # the BodyRecord of its first body with shapes, or -1 if none
+    body_indices: list = field(default_factory=list)   # all its mobile bodies with shapes
+    spring_damper: tuple | None = None   # per dof (K, D, q_rest), read when the stepper is built
 
 
 @dataclass
@@ -199,32 +224,67 @@ class Scene:
 
 
 def _joint_kind(skel) -> str:
+    """FIXED (immobile), FREE / PLANAR (a single body on a Free / XY-Planar root with identity
+    offsets: the fast path) or ARTICULATED (everything else; its joints checked by _check_joints)."""
     if skel.getNumDofs() == 0 or not skel.isMobile():
         return FIXED
+    _check_joints(skel)
     if skel.getNumBodyNodes() != 1:
-        raise ValueError(
-            f"skeleton '{skel.getName()}' has {skel.getNumBodyNodes()} bodies: the implicit stepper "
-            "supports single-body skeletons with a FreeJoint or PlanarJoint root and fixed bodies; "
-            "articulated skeletons are not supported yet.")
+        return ARTICULATED
     joint = skel.getJoint(0)
     jtype = joint.getType()
     offsets_identity = (np.allclose(joint.getTransformFromParentBodyNode().matrix(), np.eye(4))
                         and np.allclose(joint.getTransformFromChildBodyNode().matrix(), np.eye(4)))
-    if jtype == "FreeJoint":
-        if not offsets_identity:
-            raise ValueError(f"the FreeJoint of '{skel.getName()}' has non-identity parent/child "
-                             "offsets; the implicit stepper needs identity offsets on a FreeJoint.")
+    if jtype == "FreeJoint" and offsets_identity:
         return FREE
     if jtype == "PlanarJoint":
         xy = (np.allclose(joint.getRotationalAxis(), [0.0, 0.0, 1.0])
               and np.allclose(joint.getTranslationalAxis1(), [1.0, 0.0, 0.0])
               and np.allclose(joint.getTranslationalAxis2(), [0.0, 1.0, 0.0]))
-        if not offsets_identity or not xy:
-            raise ValueError(f"the PlanarJoint of '{skel.getName()}' must be in the XY plane "
-                             "(joint.setXYPlane()) with identity offsets; set gravity along -y.")
-        return PLANAR
-    raise ValueError(f"joint type {jtype} of skeleton '{skel.getName()}' is not supported: supported "
-                     "roots are FreeJoint, PlanarJoint (XY plane) and WeldJoint (fixed).")
+        if offsets_identity and xy:
+            return PLANAR
+    return ARTICULATED
+
+
+_PLAIN_ACTUATORS = ("FORCE", "PASSIVE")
+
+
+def _check_joints(skel) -> None:
+    """Refuse what DART handles as constraints (the implicit stepper replaces DART's constraint
+    solver, so it would silently drop them) and joint types it was not written for."""
+    for j in range(skel.getNumJoints()):
+        joint = skel.getJoint(j)
+        jtype = joint.getType()
+        where = f"joint '{joint.getName()}' ({jtype}) of skeleton '{skel.getName()}'"
+        if jtype not in SUPPORTED_JOINTS:
+            raise ValueError(f"{where} is not supported by the implicit stepper: supported joints are "
+                             + ", ".join(SUPPORTED_JOINTS) + ".")
+        n = joint.getNumDofs()
+        if n == 0:
+            continue
+        if joint.areLimitsEnforced():
+            raise ValueError(f"{where} enforces position limits: joint limits are not handled by the "
+                             "implicit stepper; disable them (joint.setLimitEnforcement(False)) or "
+                             "model the stop as a contact shape.")
+        for i in range(n):
+            act = joint.getActuatorType(i) if _actuator_per_dof(joint) else joint.getActuatorType()
+            if act.name not in _PLAIN_ACTUATORS:
+                raise ValueError(f"{where} has actuator type {act.name}: the implicit stepper supports "
+                                 "FORCE and PASSIVE joints (DART enforces servo, velocity, "
+                                 "acceleration, locked and mimic joints as constraints); command "
+                                 "joint forces instead.")
+            if joint.getCoulombFriction(i) != 0.0:
+                raise ValueError(f"{where} has Coulomb joint friction {joint.getCoulombFriction(i)} on "
+                                 f"dof {i}: DART enforces it as a constraint, which the implicit "
+                                 "stepper does not have; set it to 0 (damping is supported).")
+
+
+def _actuator_per_dof(joint) -> bool:
+    try:
+        joint.getActuatorType(0)
+        return True
+    except TypeError:
+        return False
 
 
 def scan_world(world) -> Scene:
@@ -232,13 +292,19 @@ def scan_world(world) -> Scene:
     skeletons, bodies = [], []
     for s in range(world.getNumSkeletons()):
         skel = world.getSkeleton(s)
-        kind = _joint_kind(skel)
+        sk_kind = _joint_kind(skel)
         sk_index = -1
-        if kind != FIXED:
+        if sk_kind != FIXED:
             sk_index = len(skeletons)
-            skeletons.append(SkeletonRecord(skel, kind, skel.getNumDofs(), -1))
+            skeletons.append(SkeletonRecord(skel, sk_kind, skel.getNumDofs(), -1,
+                                            spring_damper=_spring_damper(skel)))
+            if sk_kind == ARTICULATED:
+                _check_mass_matrix(skel)
         for b in range(skel.getNumBodyNodes()):
             node = skel.getBodyNode(b)
+            kind = sk_kind
+            if kind == ARTICULATED and node.getNumDependentGenCoords() == 0:
+                kind = FIXED           # welded to the world: no dof moves it
             found = _shapes_of(node, planar=(kind == PLANAR))
             if not found:
                 continue
@@ -250,17 +316,36 @@ def scan_world(world) -> Scene:
             if kind == FREE and dims != {3}:
                 raise ValueError(f"body '{node.getName()}' is on a FreeJoint and needs 3D shapes; 2D "
                                  "shapes need a PlanarJoint body.")
+            if kind == ARTICULATED and dims != {3}:
+                raise ValueError(f"body '{node.getName()}' belongs to an articulated skeleton and needs "
+                                 "3D shapes; 2D shapes need a single-body PlanarJoint skeleton in the "
+                                 "XY plane.")
             if kind == FIXED and len(dims) != 1:
                 raise ValueError(f"fixed body '{node.getName()}' mixes 2D and 3D shapes; give it one kind.")
             dim = want or dims.pop()
-            if kind != FIXED:
+            if kind in (FREE, PLANAR):
                 _check_mass(node)
-            rec = BodyRecord(len(bodies), node, skel, sk_index, kind, dim, found,
-                             name=f"{skel.getName()}/{node.getName()}")
+            rec = BodyRecord(len(bodies), node, skel, sk_index if kind != FIXED else -1, kind, dim, found,
+                             name=f"{skel.getName()}/{node.getName()}", world_skeleton=s)
             bodies.append(rec)
-            if sk_index >= 0:
-                skeletons[sk_index].body_index = rec.index
+            if kind != FIXED:
+                if skeletons[sk_index].body_index < 0:
+                    skeletons[sk_index].body_index = rec.index
+                skeletons[sk_index].body_indices.append(rec.index)
     return Scene(skeletons, bodies)
+
+
+def _check_mass_matrix(skel):
+    M = np.asarray(skel.getMassMatrix(), float)
+    ok = bool(np.all(np.isfinite(M)))
+    if ok:
+        try:
+            np.linalg.cholesky(0.5 * (M + M.T))
+        except np.linalg.LinAlgError:
+            ok = False
+    if not ok:
+        raise ValueError(f"skeleton '{skel.getName()}' has a mass matrix that is not positive definite: "
+                         "give every body a positive mass and inertia.")
 
 
 def _check_mass(node):
@@ -353,24 +438,59 @@ def rotation_log(R: np.ndarray) -> np.ndarray:
 class SkeletonState:
     q: np.ndarray
     v: np.ndarray
-    M: np.ndarray
-    force: np.ndarray          # tau + tau_ext - (Coriolis + gravity), generalized, at l
-    R: np.ndarray | None       # world pose of its contact body at l (3x3), or None
+    M: np.ndarray              # mass matrix at l (+ h D + h^2 K of joint dampers and springs)
+    force: np.ndarray          # tau + tau_ext - (Coriolis + gravity) + springs and dampers, at l
+    R: np.ndarray | None       # world pose of its first contact body at l (3x3), or None
     p: np.ndarray | None
+    bodies: dict = field(default_factory=dict)   # ARTICULATED: body index -> (R, p, J 6 x ndof)
 
 
-def read_skeleton(rec: SkeletonRecord, body: BodyRecord | None) -> SkeletonState:
+def _spring_damper(skel):
+    """Per dof (stiffness K, damping D, rest position), or None if all are zero."""
+    k, d, q0 = [], [], []
+    for j in range(skel.getNumJoints()):
+        joint = skel.getJoint(j)
+        for i in range(joint.getNumDofs()):
+            k.append(joint.getSpringStiffness(i))
+            d.append(joint.getDampingCoefficient(i))
+            q0.append(joint.getRestPosition(i))
+    k, d, q0 = np.array(k, float), np.array(d, float), np.array(q0, float)
+    if not (k.any() or d.any()):
+        return None
+    return k, d, q0
+
+
+def read_skeleton(rec: SkeletonRecord, body: BodyRecord | None, h: float | None = None,
+                  articulated: list = ()) -> SkeletonState:
+    """q, v, M, generalized force at l; the pose of ``body``; and for each BodyRecord in
+    ``articulated`` its pose and world Jacobian. With h, joint springs and dampers enter
+    implicitly as DART treats them (see the module docstring); their coefficients are the ones
+    read when the stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton,
+    5 % of a rolling-disc step)."""
     skel = rec.skeleton
     q = np.asarray(skel.getPositions(), float)
     v = np.asarray(skel.getVelocities(), float)
     M = np.asarray(skel.getMassMatrix(), float)
     force = (np.asarray(skel.getForces(), float) + np.asarray(skel.getExternalForces(), float)
              - np.asarray(skel.getCoriolisAndGravityForces(), float))
+    if h is not None:
+        sd = rec.spring_damper
+        if sd is not None:
+            k, d, q0 = sd
+            # DART's rest position is per dof in joint coordinates; for Ball/Free joints springs are
+            # on the exponential coordinates as in DART's GenericJoint
+            force = force - k * (q - q0 + h * v) - d * v
+            M = M + np.diag(h * d + h * h * k)
     R = p = None
     if body is not None:
         T = body.body_node.getWorldTransform().matrix()
         R, p = T[:3, :3].copy(), T[:3, 3].copy()
-    return SkeletonState(q, v, M, force, R, p)
+    out = {}
+    for b in articulated:
+        T = b.body_node.getWorldTransform().matrix()
+        J = np.asarray(skel.getWorldJacobian(b.body_node, np.zeros(3)), float)
+        out[b.index] = (T[:3, :3].copy(), T[:3, 3].copy(), J)
+    return SkeletonState(q, v, M, force, R, p, out)
 
 
 def body_pose(body: BodyRecord):

@@ -18,6 +18,14 @@ q^{l+1} = q^l (+) h v^{l+1} ([GI] eq 21, second line), written exactly as DART i
   p+ = p + h v_o. A perturbation of v moves the pose by the world-frame twist
   dtheta = h J_l(h omega) d omega, dp = h d v_o (J_l: left Jacobian of SO(3)).
 * PlanarJoint in XY (v = [v_x, v_y, omega]): theta+ = theta + h omega, p+ = p + h [v_x, v_y].
+* ARTICULATED (a body of a multi-body skeleton, or of any other root; v = its skeleton's
+  velocities, shared by all its bodies): the body moves rigidly with its twist through DART's
+  world Jacobian of its origin at l, J = [A_w; A_v] (6 x ndof, angular rows first):
+  omega = A_w v, R+ = exp(h [omega]x) R, p+ = p + h A_v v; dtheta = h J_l(h omega) A_w dv,
+  dp = h A_v dv. Exact for a free body; for a chain it differs from DART's joint-space update
+  q+ = q (+) h v (which the stepper uses to write back) by O(h^2 |v|^2): a revolute link's
+  origin moves along the chord instead of the arc. Such pairs run on the generic numpy path
+  (quasi_rigid.CompliantPair with no compliance), not on the float hot path below.
 
 A body function f is written in body coordinates, so at a world point a it is evaluated as
 f(xi), xi = R^T (a - p). With G = R grad f(xi) (world gradient) and Hw = R H R^T, and r = a - p:
@@ -78,6 +86,7 @@ from . import shapes as shp
 from .params import Friction
 
 FREE, PLANAR, FIXED = "free", "planar", "fixed"
+ARTICULATED = "articulated"   # a body of a multi-body skeleton (or any other root): see BodyKinematics
 
 
 # ---------------------------------------------------------------------------------------------
@@ -369,6 +378,8 @@ class BodyKinematics:
     h: float
     vindex: np.ndarray | None  # columns of its velocity unknowns in z (None for fixed)
     mass: float = math.inf
+    jacobian: np.ndarray | None = None   # ARTICULATED: DART's world Jacobian of the body origin at l
+    #                                      (6 x ndof of its skeleton, angular rows first)
 
     @property
     def ndof(self) -> int:
@@ -390,6 +401,18 @@ class BodyKinematics:
             B_p = np.zeros((3, 6))
             B_p[:, 3:] = h * np.eye(3)
             return Pose(R, p, B_th, B_p, _A_W_FREE, _A_V_FREE, w.copy())
+        if self.kind == ARTICULATED:
+            # The body moves rigidly with its twist at l+1 through the Jacobian at l:
+            # omega = A_w v, v_o = A_v v, R+ = exp(h [omega]x) R0, p+ = p0 + h v_o. Exact for a
+            # free body; for a chain it agrees with DART's joint-space update q+ = q (+) h v to
+            # O(h^2 |v|^2) (the chord of a revolute link's arc instead of the arc; the stepper
+            # writes back with DART's integratePositions). Only the generic (numpy) pair path
+            # (quasi_rigid.CompliantPair) evaluates such bodies.
+            A_w, A_v = self.jacobian[:3], self.jacobian[3:]
+            w = A_w @ v
+            R = so3_exp(h * w) @ self.R0
+            p = self.p0 + h * (A_v @ v)
+            return Pose(R, p, h * (so3_left_jacobian(h * w) @ A_w), h * A_v, A_w, A_v, w)
         # planar, XY
         th = self.q0[2] + h * v[2]
         c, s = math.cos(th), math.sin(th)
@@ -639,6 +662,8 @@ class PairSpec:
     compliance: object = None  # an ic.Compliance: a quasi-rigid pair (see quasi_rigid.py)
     compliant_side: int = 2    # which body carries the deformed layer
     delta_prev: float = 0.0    # its normal deflection at l
+    generic: bool = False      # evaluate on the generic numpy path (quasi_rigid.CompliantPair), e.g.
+    #                            a pair with an ARTICULATED body; compliance implies it
 
 
 @dataclass
@@ -1014,6 +1039,9 @@ class StepProblem:
         self._states = []
         self._moving = []
         for b, kin in enumerate(bodies):
+            if kin.kind == ARTICULATED:
+                self._states.append(None)      # generic pairs only: no hot-path state
+                continue
             if kin.vindex is None:
                 d = kin.dim
                 R = tuple(map(tuple, np.asarray(kin.R0, float)[:d, :d].tolist()))
@@ -1025,13 +1053,19 @@ class StepProblem:
                 base = kin.p0 if kin.kind == FREE else kin.q0
                 self._moving.append((b, kin, self._vslice[b], R0, tuple(np.asarray(base, float).tolist())))
         from .quasi_rigid import CompliantPair
-        self._plans = [CompliantPair(self, k) if spec.compliance is not None else _PairPlan(self, k, spec, sl)
+        self._plans = [CompliantPair(self, k) if self._generic(spec) else _PairPlan(self, k, spec, sl)
                        for k, (spec, sl) in enumerate(zip(specs, layout.pairs))]
         self._key_f = self._key_j = None
         self._F = self._J = None
         self._reports = None       # per-pair quantities at _key_f as floats (see _pairs_at)
         self._reports_np = None
         self._resume = None        # the suspended pair evaluations at _key_f (see _pair)
+
+    def _generic(self, spec) -> bool:
+        """Pairs the hot path (_PairPlan) does not handle: quasi-rigid pairs, pairs flagged
+        generic, and pairs with an ARTICULATED body."""
+        return (spec.compliance is not None or spec.generic
+                or ARTICULATED in (self.bodies[spec.obj1.body].kind, self.bodies[spec.obj2.body].kind))
 
     # -- unknown vector helpers ---------------------------------------------------------------
     def body_velocity(self, z, body_index):

@@ -24,6 +24,12 @@ Unknowns added per pair: dbar, delta_n (free) and p_nr (>= 0, only with a finite
 
 These rows are evaluated in plain numpy (a quasi-rigid pair is rarer and small), with the same
 chain rule as the rigid rows; tests/test_formulation.py checks the Jacobian by differences.
+
+The same class is the generic pair path: with spec.compliance None it writes exactly the rigid
+rows (15)-(22) (no dbar, delta_n, p_nr) from general Pose matrices (A_w, A_v, B_th, B_p), so it
+serves every pair the float hot path of formulation._PairPlan does not: pairs with a body of an
+articulated skeleton (BodyKinematics kind ARTICULATED, whose velocity columns are its skeleton's;
+tests/test_articulated.py checks that Jacobian by differences).
 """
 from __future__ import annotations
 
@@ -35,8 +41,9 @@ from . import formulation as fm
 
 
 class CompliantPair:
-    """One quasi-rigid pair of a StepProblem, with the generator interface of the rigid pairs:
-    next() writes its rows into F and yields its report; send(J) writes its Jacobian."""
+    """One quasi-rigid (or generic rigid, spec.compliance None) pair of a StepProblem, with the
+    generator interface of the rigid pairs: next() writes its rows into F and yields its report;
+    send(J) writes its Jacobian."""
 
     def __init__(self, problem, k):
         self.problem, self.k = problem, k
@@ -65,8 +72,9 @@ class CompliantPair:
         fa2, Ga2, _, dfa2, _ = fm._eval_functions(f1, P1, a2, jac)
         gb2, Gb2, Hb2, dgb2, dGb2 = fm._eval_functions(spec.obj2.functions, P2, a2, jac)
         l1, l2 = z[sl.l1s], z[sl.l2s]
-        dbar, dn = z[sl.dbar], z[sl.dn]
-        side = spec.compliant_side
+        rigid = comp is None
+        dbar, dn = (0.0, 0.0) if rigid else (z[sl.dbar], z[sl.dn])
+        side = 0 if rigid else spec.compliant_side
         k1 = spec.k1
         c = l1.copy()
         c[k1] = 1.0
@@ -97,28 +105,31 @@ class CompliantPair:
             Pvec = Pvec + s_p * (p_t @ tang)
         tau = s_p * e_r * p_r * nhat if torsion else None
         # eq (35) on the compliant side's active function at its point
-        if side == 2:
+        if rigid:
+            pass
+        elif side == 2:
             funcs, Pc, ac, Tc, acs, vcs, gvals = spec.obj2.functions, P2, a2, T2, sl.a2s, v2s, gb2
         else:
             funcs, Pc, ac, Tc, acs, vcs, gvals = f1, P1, a1, T1, sl.a1s, v1s, fa1
-        j = int(np.argmax(gvals))
-        fc = (funcs[j],)
-        _, Gc, Hc, _, dGc = fm._eval_functions(fc, Pc, ac, jac)
-        gnorm = math.sqrt(float(Gc[0] @ Gc[0]))
-        u = Gc[0] / gnorm
-        y = ac + dn * u
-        fy, Gy, _, dfy, _ = fm._eval_functions(fc, Pc, y, jac)
-        F[sl.dbar] = fy[0]                                               # (35)
-        # spring-damper and core
-        kn, cn = comp.k_n, comp.c_n
-        dprev = spec.delta_prev
-        h = pb.h
-        spring = h * kn * (0.5 * (dn + dprev) if comp.scheme == "midpoint" else dn) + cn * (dn - dprev)
-        dspring = h * kn * (0.5 if comp.scheme == "midpoint" else 1.0) + cn
-        p_nr = z[sl.p_nr] if sl.p_nr >= 0 else 0.0
-        F[sl.dn] = (p_n - p_nr) - spring / s_p                           # (49)
-        if sl.p_nr >= 0:
-            F[sl.p_nr] = comp.delta_max - dn                             # (55)
+        if not rigid:
+            j = int(np.argmax(gvals))
+            fc = (funcs[j],)
+            _, Gc, Hc, _, dGc = fm._eval_functions(fc, Pc, ac, jac)
+            gnorm = math.sqrt(float(Gc[0] @ Gc[0]))
+            u = Gc[0] / gnorm
+            y = ac + dn * u
+            fy, Gy, _, dfy, _ = fm._eval_functions(fc, Pc, y, jac)
+            F[sl.dbar] = fy[0]                                           # (35)
+            # spring-damper and core
+            kn, cn = comp.k_n, comp.c_n
+            dprev = spec.delta_prev
+            h = pb.h
+            spring = h * kn * (0.5 * (dn + dprev) if comp.scheme == "midpoint" else dn) + cn * (dn - dprev)
+            dspring = h * kn * (0.5 if comp.scheme == "midpoint" else 1.0) + cn
+            p_nr = z[sl.p_nr] if sl.p_nr >= 0 else 0.0
+            F[sl.dn] = (p_n - p_nr) - spring / s_p                       # (49)
+            if sl.p_nr >= 0:
+                F[sl.p_nr] = comp.delta_max - dn                         # (55)
         if jac:
             eye_d = fm._EYE[d]
             dN1_da1 = np.einsum("i,ijk->jk", c, Ha1)
@@ -155,19 +166,20 @@ class CompliantPair:
                 J[sl.row_n, v1s] = dfa2[ia]
             if side == 1:
                 J[sl.row_n, sl.dbar] = 1.0
-            # (35): d g(y) = G(y).(da_c + u d dn + dn du) + dfdv(y) dv, du = (I - u u^T)/|G| dG(a_c)
-            Pu = (eye_d - np.outer(u, u)) / gnorm
-            gy_du = dn * (Gy[0] @ Pu)                                     # row: d g(y) / d G(a_c)
-            J[sl.dbar, acs] = (Gy[0] + gy_du @ Hc[0]) @ Tc
-            J[sl.dbar, sl.dn] = Gy[0] @ u
-            if vcs is not None:
-                J[sl.dbar, vcs] = dfy[0] + gy_du @ dGc[0]
-            # spring and core
-            J[sl.dn, sl.p_n] = 1.0
-            J[sl.dn, sl.dn] = -dspring / s_p
-            if sl.p_nr >= 0:
-                J[sl.dn, sl.p_nr] = -1.0
-                J[sl.p_nr, sl.dn] = -1.0
+            if not rigid:
+                # (35): d g(y) = G(y).(da_c + u d dn + dn du) + dfdv(y) dv, du = (I - u u^T)/|G| dG(a_c)
+                Pu = (eye_d - np.outer(u, u)) / gnorm
+                gy_du = dn * (Gy[0] @ Pu)                                 # row: d g(y) / d G(a_c)
+                J[sl.dbar, acs] = (Gy[0] + gy_du @ Hc[0]) @ Tc
+                J[sl.dbar, sl.dn] = Gy[0] @ u
+                if vcs is not None:
+                    J[sl.dbar, vcs] = dfy[0] + gy_du @ dGc[0]
+                # spring and core
+                J[sl.dn, sl.p_n] = 1.0
+                J[sl.dn, sl.dn] = -dspring / s_p
+                if sl.p_nr >= 0:
+                    J[sl.dn, sl.p_nr] = -1.0
+                    J[sl.p_nr, sl.dn] = -1.0
             Pn = (eye_d - np.outer(nhat, nhat)) / nrm
             dP_dn = s_p * p_n * eye_d
             if fr:

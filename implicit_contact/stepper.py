@@ -12,6 +12,12 @@ One step, as a table of contents (DESIGN.md, "One step, as data flows")::
 Skeletons without candidate pairs take the exact free step v+ = v + h M^{-1} force (the same
 semi-implicit Euler step DART takes), and a step with no pair near builds no MCP at all.
 
+Articulated skeletons (dart_adapter: kind ARTICULATED) take part like single bodies: every body of
+the skeleton with contact shapes is a body of the step with the skeleton's velocity columns and
+DART's world Jacobian at l; pairs within one skeleton are skipped (no self-collision); the write-
+back is DART's setVelocities + integratePositions for every mobile skeleton, as for free bodies.
+Joint springs and dampers are implicit as in DART (dart_adapter.read_skeleton).
+
 Friction rows of a pair are built when the pair can be in contact in this step (it was in contact
 at the last step, or its bodies are within the motion margin). A pair whose gap is open at the
 solution has p_n = 0, and with the friction rows present its sigma is then undetermined; so a pair
@@ -289,6 +295,9 @@ class ImplicitContactStepper:
             oi, oj = self._objects[i], self._objects[j]
             if oi.body == oj.body:
                 continue
+            bi, bj = self.scene.bodies[oi.body], self.scene.bodies[oj.body]
+            if bi.world_skeleton == bj.world_skeleton and bi.world_skeleton >= 0:
+                continue           # two bodies of one skeleton: no self-collision (DART's default)
             if self.scene.bodies[oi.body].kind == adapter.FIXED and self.scene.bodies[oj.body].kind == adapter.FIXED:
                 continue
             out.append((i, j))
@@ -297,24 +306,32 @@ class ImplicitContactStepper:
     def _one_step(self, h) -> StepReport:
         scene = self.scene
         t0 = self.world.getTime()
-        states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None)
+        states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None, h,
+                                        [scene.bodies[b] for b in s.body_indices]
+                                        if s.kind == adapter.ARTICULATED else ())
                   for s in scene.skeletons]
         v_free = [st.v + h * np.linalg.solve(st.M, st.force) for st in states]
         poses_now = {b.index: adapter.body_pose(b) for b in scene.bodies}
         poses_pred = {}
         for s, rec in enumerate(scene.skeletons):
-            if rec.body_index >= 0:
-                poses_pred[rec.body_index] = _predict_pose(rec.kind, states[s], v_free[s], h)
+            for b in rec.body_indices:
+                poses_pred[b] = _predict_body_pose(scene.bodies[b], states[s], v_free[s], h)
         tol = self.options.contact_tolerance
         margins = np.full(len(self._objects), 10.0 * tol)
         for k, o in enumerate(self._objects):
             rec = scene.bodies[o.body]
             if rec.skeleton_index >= 0:
                 v = v_free[rec.skeleton_index]
-                lin = np.linalg.norm(v[:2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[3:6])
-                ang = abs(v[2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[:3])
+                reach = o.piece.length_scale
+                if rec.kind == adapter.ARTICULATED:
+                    J = states[rec.skeleton_index].bodies[rec.index][2]
+                    lin, ang = np.linalg.norm(J[3:] @ v), np.linalg.norm(J[:3] @ v)
+                    reach += o.offset          # the piece may sit far from the body origin
+                else:
+                    lin = np.linalg.norm(v[:2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[3:6])
+                    ang = abs(v[2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[:3])
                 # the MCP's v+ differs from free flight: allow half a free step more of motion
-                margins[k] += 0.5 * h * (lin + ang * o.piece.length_scale)
+                margins[k] += 0.5 * h * (lin + ang * reach)
         pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
         if not pairs:
             midpoint = self._trapezoidal_skeletons()
@@ -337,12 +354,13 @@ class ImplicitContactStepper:
         previous = None            # (problem, x) to warm start a re-solve from
         sliding = []
         reseeded = None
+        cold = cold_tried = False
         for _attempt in range(6):
             problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
             if reseeded is not None:
                 z0, reseeded = reseeded, None
             elif previous is None:
-                z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h)
+                z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h, cold)
             else:
                 z0 = _transfer(*previous, problem, sliding)
             result = self._solve(problem, z0)
@@ -365,6 +383,16 @@ class ImplicitContactStepper:
                 sliding = _stuck_sliding(problem, x)
                 if sliding:
                     continue
+            if not cold_tried and any(sp.key in self._last and self._last[sp.key]["p_n"] > 0.0 for sp in specs):
+                # the warm start carried last step's impulses; after an impact they can be far
+                # from this step's (a pendulum stopped by an obstacle leaves it again: p_n = 0) and
+                # Newton stalls. Start once more as new contacts do: free-flight velocities, zero
+                # impulses, no friction rows (they come back for the pairs that touch).
+                cold = cold_tried = True
+                previous, sliding = None, []
+                for sp in specs:
+                    sp.with_friction = False
+                continue
             if _attempt < 5 and not getattr(problem, "_reseeded", False):
                 # restart from exact closest points at the poses the failed iterate implies
                 reseeded = _reseed(problem, x, self.options.contact_tolerance)
@@ -440,6 +468,18 @@ class ImplicitContactStepper:
             if rec.kind == adapter.FIXED:
                 R, p = poses_now[b]
                 kins.append(fm.BodyKinematics(fm.FIXED, rec.dim, R, p, None, h, None))
+            elif rec.kind == adapter.ARTICULATED:
+                # the body's pose moves with its twist J v (J: DART's world Jacobian at l); the
+                # trapezoidal scheme starts from the pose after half a step at v
+                s = rec.skeleton_index
+                st = states[s]
+                R, p, J = st.bodies[b]
+                hk = h
+                if s in midpoint:
+                    R, p = _predict_body_pose(rec, st, st.v, h / 2)
+                    hk = h / 2
+                kins.append(fm.BodyKinematics(fm.ARTICULATED, 3, R, p, None, hk, layout.v_index[sk_pos[s]],
+                                              rec.body_node.getMass(), J))
             elif rec.skeleton_index in midpoint:
                 # trapezoidal positions, q+ = q + h (v + v+)/2: the pose after half a step at v,
                 # then half a step at the unknown v+
@@ -456,7 +496,8 @@ class ImplicitContactStepper:
                 kins.append(fm.BodyKinematics(rec.kind, rec.dim, st.R, st.p, q0, h,
                                               layout.v_index[sk_pos[s]], rec.body_node.getMass()))
         blocks = [fm.SkeletonBlock(states[s].M, states[s].v, states[s].force,
-                                   body_pos[scene.skeletons[s].body_index]) for s in involved]
+                                   next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
+                  for s in involved]
         return fm.StepProblem(h, blocks, kins, specs, layout)
 
     def _pair_spec(self, i, j, h, body_pos, states):
@@ -497,10 +538,13 @@ class ImplicitContactStepper:
         o1 = fm.ContactObject(body_pos[first.body], first.funcs, red1, first.label)
         o2 = fm.ContactObject(body_pos[second.body], second.funcs, red2, second.label)
         delta_prev = last["deflection"] if last is not None else 0.0
+        generic = adapter.ARTICULATED in (b1.kind, b2.kind)
         return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
-                           compliance, side, delta_prev)
+                           compliance, side, delta_prev, generic=generic)
 
-    def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h):
+    def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h, cold=False):
+        """z0 from the last step's solution (closest points carried along, impulses kept); cold:
+        closest points the same way, but free-flight velocities and zero impulses."""
         from .closest import closest_points
         lay = problem.layout
         z = np.zeros(lay.n)
@@ -513,7 +557,7 @@ class ImplicitContactStepper:
                     if s >= 0:
                         touching_skeletons.add(s)
         for k, s in enumerate(involved):
-            z[lay.v_index[k]] = states[s].v if s in touching_skeletons else v_free[s]
+            z[lay.v_index[k]] = states[s].v if (s in touching_skeletons and not cold) else v_free[s]
         for k, spec in enumerate(specs):
             sl = lay.pairs[k]
             first, second = spec.objects
@@ -521,10 +565,12 @@ class ImplicitContactStepper:
             d = spec.dim
             last = self._last.get(spec.key)
             if last is not None:
-                s1, s2 = _contact_shift(b1, b2, states, h, last["a2"] - last["a1"], d)
+                s1, s2 = _contact_shift(b1, b2, states, h, last["a2"] - last["a1"], d, last["a1"], last["a2"])
                 a1, a2 = last["a1"] + s1, last["a2"] + s2
                 l1, l2 = last["l1"], last["l2"]
                 p_n, p_t, p_r, sigma = last["p_n"], last["p_t"], last["p_r"], last["sigma"]
+                if cold:
+                    p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
             else:
                 res = closest_points(first.piece, _pose_dim(poses_now[first.body], d),
                                      second.piece, _pose_dim(poses_now[second.body], d))
@@ -560,7 +606,7 @@ class ImplicitContactStepper:
                 spring = h * comp.k_n * stiff + comp.c_n * (dn - spec.delta_prev)
                 if sl.p_nr >= 0:
                     z[sl.p_nr] = last["p_nr"] / spec.impulse_scale
-                if last["p_n"] > 0.0 and spring > 0.0:
+                if last["p_n"] > 0.0 and spring > 0.0 and not cold:
                     z[sl.p_n] = spring / spec.impulse_scale + z[sl.p_nr] * (sl.p_nr >= 0)
         return z
 
@@ -627,6 +673,7 @@ class _Object:
         self.key = label
         d = piece.dim
         self._sphere = None
+        self.offset = 0.0          # distance of its body-frame box centre from the body origin
         if piece.bounded:
             lo, hi = (np.asarray(v, float) for v in piece.aabb(np.eye(d), np.zeros(d)))
             centre = np.zeros(3)
@@ -634,6 +681,7 @@ class _Object:
             half = np.zeros(3)
             half[:d] = 0.5 * (hi - lo)
             self._sphere = (centre, half)
+            self.offset = float(np.linalg.norm(centre))
         self._last = None
 
     def box(self, pose):
@@ -665,6 +713,14 @@ def _aabb3(piece, pose):
     if d == 2:
         lo, hi = np.append(lo, 0.0), np.append(hi, 0.0)
     return lo, hi
+
+
+def _predict_body_pose(body, st, v, h):
+    """A body's pose after a step h at skeleton velocity v, as the formulation models it."""
+    if body.kind == adapter.ARTICULATED:
+        R, p, J = st.bodies[body.index]
+        return fm.so3_exp(h * (J[:3] @ v)) @ R, p + h * (J[3:] @ v)
+    return _predict_pose(body.kind, st, v, h)
 
 
 def _predict_pose(kind, st, v, h):
@@ -707,19 +763,25 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
     return l1, l2, k1
 
 
-def _contact_shift(b1, b2, states, h, gap_vector, d):
+def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
     """Warm start: how far the last closest points a1, a2 travel in one step.
 
     Each point moves with its own body's translation; the point on a fixed body also slides
     along its surface with the other body's tangential translation (the contact point of a
     rolling disc travels along the ground; a falling body's target point stays put). Exact for
-    steady rolling on flat ground."""
-    def velocity(b):
+    steady rolling on flat ground. A point of an articulated body moves with its material velocity
+    v_o + omega x (a - p) (a link's origin may sit at a joint that does not move)."""
+    def velocity(b, a):
         if b.kind == adapter.FIXED:
             return np.zeros(d)
-        v = states[b.skeleton_index].v
+        st = states[b.skeleton_index]
+        v = st.v
+        if b.kind == adapter.ARTICULATED:
+            R, p, J = st.bodies[b.index]
+            w, vo = J[:3] @ v, J[3:] @ v
+            return vo if a is None else vo + np.cross(w, np.asarray(a, float) - p)
         return np.array([v[0], v[1]]) if b.kind == adapter.PLANAR else v[3:6].copy()
-    v1, v2 = velocity(b1), velocity(b2)
+    v1, v2 = velocity(b1, a1), velocity(b2, a2)
     norm = np.linalg.norm(gap_vector)
     n = gap_vector / norm if norm > 1e-12 else None
     tangential = (lambda v: v - (v @ n) * n) if n is not None else (lambda v: v)
