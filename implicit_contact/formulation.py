@@ -1401,7 +1401,7 @@ class StepProblem:
         self.fun(z)
         a1, a2, nhat, tang, gap, _ = self._pairs_at[k]
         s_p = spec.impulse_scale
-        p_t = s_p * z[sl.p_ts] if spec.with_friction else np.zeros(spec.dim - 1)
+        p_t = s_p * z[sl.p_ts] if sl.sigma >= 0 else np.zeros(spec.dim - 1)   # the rows the layout has
         p_r = s_p * spec.friction.e_r * z[sl.p_r] if sl.p_r >= 0 else 0.0
         sigma = z[sl.sigma] if sl.sigma >= 0 else 0.0
         return PairState(a1, a2, z[sl.l1s].copy(), z[sl.l2s].copy(), s_p * z[sl.p_n], p_t, p_r, sigma,

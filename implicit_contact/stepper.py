@@ -122,6 +122,7 @@ POLICIES = ("raise", "warn", "retry")
 # units) can fix a residual of O(h^2). The solver's default descent test (rho = 1e-8) rejects such
 # steps as "too long for the residual"; rho = 1e-24 still caps steps at ~1e6 for a 1e-5 residual.
 DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
+_AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
 _TOUCH = 1e-9   # scaled normal impulse (units of h m g) above which a pair counts as touching
 
 
@@ -355,7 +356,8 @@ class ImplicitContactStepper:
         sliding = []
         reseeded = None
         cold = cold_tried = False
-        for _attempt in range(6):
+        k1_switches = 0
+        for _attempt in range(8):
             problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
             if reseeded is not None:
                 z0, reseeded = reseeded, None
@@ -377,6 +379,17 @@ class ImplicitContactStepper:
                     specs[k].with_friction = k in on
                 continue
             if result.success:
+                # [GI] Prop. 4.3 needs k1 active on body 1; with k1 inactive eqs (28)-(32) admit
+                # interpenetrating "touching" points (a box sliding off a table's edge slides down
+                # its side face). Take k1 from the static closest points there and solve again.
+                stale = _inactive_k1(problem, x, self.options.contact_tolerance)
+                if stale and k1_switches < 2:
+                    k1_switches += 1
+                    reseeded = _reseed(problem, x, self.options.contact_tolerance, adopt_k1=stale)
+                    continue
+                if stale:
+                    result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
+                                     message=f"no solution with an active k1 for pairs {stale}")
                 break
             if previous is not None and not sliding:
                 # a failed solve from a frictionless solution: restart the stuck contacts sliding
@@ -410,7 +423,7 @@ class ImplicitContactStepper:
             sl = layout.pairs[k]
             new_last[spec.key] = {"a1": st.a1, "a2": st.a2, "l1": st.l1, "l2": st.l2, "p_n": st.p_n,
                                   "p_t": st.p_t, "p_r": st.p_r, "sigma": st.sigma, "k1": spec.k1,
-                                  "axis": spec.tangent_axis,
+                                  "axis": spec.tangent_axis, "normal": st.normal,
                                   "dbar": float(z[sl.dbar]) if sl.dbar >= 0 else 0.0,
                                   "deflection": float(z[sl.dn]) if sl.dn >= 0 else 0.0,
                                   "deflection_prev": spec.delta_prev,
@@ -441,7 +454,13 @@ class ImplicitContactStepper:
             # substeps of a retried step are the hard ones (measured: a box slapping flat onto the
             # ground converges in ~100 LM iterations); give them a larger budget
             opts = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
-        result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options=opts)
+        try:
+            result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options=opts)
+        except (ZeroDivisionError, FloatingPointError, OverflowError) as exc:
+            # the rows are undefined at some iterate (e.g. a contact normal along its pair's tangent
+            # axis): a failed solve like any other, never a crash half-way through a step
+            return ncp.McpResult(np.asarray(z0, float).copy(), np.full(len(z0), np.nan), ncp.Status.NOT_FINITE,
+                                 0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
         if result.success and result.residual > 1e-3 * opts.tol:
             polish = ncp.solve_mcp(problem.fun, problem.jac, result.x, problem.lower, problem.upper,
                                    options=replace(opts, tol=1e-3 * opts.tol, max_iterations=1))
@@ -524,8 +543,12 @@ class ImplicitContactStepper:
         # friction rows for pairs that touched at the last step; the others get them if they touch
         with_friction = friction.active and last is not None and last["p_n"] > _TOUCH * s_p
         axis = None
-        if dim == 3:
-            axis = last["axis"] if last is not None else None
+        if dim == 3 and last is not None:
+            # the tangents come from Gram-Schmidt on a fixed axis; keep the axis while the normal
+            # stays far from it, else take a new one (the warm start rotates the friction along)
+            axis = last["axis"]
+            if axis is None or abs(float(axis @ last["normal"])) > _AXIS_LIMIT:
+                axis = fm._least_aligned_axis(last["normal"])
         k1 = last["k1"] if last is not None else 0
         compliance = self._pair_compliance.get(frozenset((b1.index, b2.index)),
                                                Compliance.series(first.compliance, second.compliance))
@@ -569,6 +592,12 @@ class ImplicitContactStepper:
                 a1, a2 = last["a1"] + s1, last["a2"] + s2
                 l1, l2 = last["l1"], last["l2"]
                 p_n, p_t, p_r, sigma = last["p_n"], last["p_t"], last["p_r"], last["sigma"]
+                if d == 3 and last["axis"] is not None and spec.tangent_axis is not None \
+                        and not np.array_equal(last["axis"], spec.tangent_axis):
+                    n = last["normal"]
+                    old = fm._tangent_basis(n, last["axis"])[1:]
+                    new = fm._tangent_basis(n, spec.tangent_axis)[1:]
+                    p_t = new @ (old.T @ p_t)
                 if cold:
                     p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
             else:
@@ -585,14 +614,15 @@ class ImplicitContactStepper:
                 spec.k1 = k1
                 p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
             if spec.tangent_axis is None and d == 3:
-                n0 = (a2 - a1) if np.linalg.norm(a2 - a1) > 1e-12 else np.array([0.0, 0.0, 1.0])
+                n0 = normal if last is None else last["normal"]
                 spec.tangent_axis = fm._least_aligned_axis(n0 / np.linalg.norm(n0))
             problem.pack_points(z, k, a1, a2)
             z[sl.l1] = l1
             z[sl.l2] = l2
             z[sl.p_n] = p_n / spec.impulse_scale
-            if spec.with_friction:
-                z[sl.p_t] = p_t / spec.impulse_scale
+            if sl.sigma >= 0:
+                if len(p_t) == len(sl.p_t):
+                    z[sl.p_t] = p_t / spec.impulse_scale
                 if sl.p_r >= 0:
                     z[sl.p_r] = p_r / (spec.impulse_scale * spec.friction.e_r)
                 z[sl.sigma] = sigma
@@ -856,7 +886,22 @@ def _central_touch_point(spec, P1, P2, a, normal, tol):
     return a
 
 
-def _reseed(problem, x, tol):
+def _inactive_k1(problem, x, tol) -> list:
+    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1."""
+    out = []
+    for k, spec in enumerate(problem.specs):
+        if len(spec.obj1.functions) < 2:
+            continue
+        b1 = spec.obj1.body
+        a1 = problem.points(x, k)[0]
+        f, *_ = fm._eval_functions((spec.obj1.functions[spec.k1],),
+                                   problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1, jac=False)
+        if f[0] < -tol:
+            out.append(k)
+    return out
+
+
+def _reseed(problem, x, tol, adopt_k1=()):
     """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
     replace every pair's closest points and multipliers by the static solution (closest.py) at
     the poses those velocities imply.
@@ -877,11 +922,13 @@ def _reseed(problem, x, tol):
         if res.overlapping or res.distance <= tol:
             a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
         l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
-        if k1 != spec.k1:
+        if k in adopt_k1:
+            spec.k1 = k1         # the caller rebuilds the problem with it
+        elif k1 != spec.k1:
             continue             # the layout's k1 is fixed for this problem; keep the old seed
         sl = problem.layout.pairs[k]
         problem.pack_points(z, k, a1, a2)
         z[sl.l1s] = l1
         z[sl.l2s] = l2
-    problem._reseeded = True
+    problem._reseeded = not adopt_k1
     return z

@@ -175,3 +175,34 @@ def test_dart_box_dropped_on_an_edge_lands_flat_with_the_retry_policy():
         assert abs(z_axis[2]) == pytest.approx(1.0, abs=1e-6)
     v = skel.getVelocities()
     assert np.linalg.norm(v[3:]) < 1e-6          # at rest but for a free spin about z (e_r = 0)
+
+
+def test_box_sliding_off_a_table_edge_never_interpenetrates_silently():
+    """Both bodies intersections: [GI] eqs (28)-(32) need an active k1 on body 1; with k1 stale
+    they admit interpenetrating points (the box would slide down the table's side face). Every
+    accepted step must leave the two boxes apart by the independent static closest-point oracle;
+    a step the stepper cannot solve must raise StepFailure (a known limit: tipping over the edge)."""
+    from implicit_contact.closest import closest_points
+    h = 0.005
+    world = _world(h)
+    base = dart.dynamics.Skeleton("table")
+    _, top = base.createWeldJointAndBodyNodePair()
+    node = top.createShapeNode(dart.dynamics.BoxShape(np.array([1.0, 1.0, 0.2])))
+    node.createCollisionAspect()
+    node.createDynamicsAspect().setFrictionCoeff(0.2)
+    world.addSkeleton(base)
+    skel = _dart_box(world, (0.4, 0.3, 0.2), 0.2, [0.2, 0.0, 0.2], velocity=[0, 0, 0, 1.2, 0, 0])
+    stepper = ic.ImplicitContactStepper(world)
+    table = ic.shapes.Intersection.box([0.5, 0.5, 0.1])
+    box = ic.shapes.Intersection.box([0.2, 0.15, 0.1])
+    steps = 0
+    try:
+        for _ in range(120):
+            stepper.step()
+            steps += 1
+            T = skel.getBodyNode(0).getWorldTransform().matrix()
+            res = closest_points(table, (np.eye(3), np.zeros(3)), box, (T[:3, :3], T[:3, 3]))
+            assert not (res.overlapping and res.depth > 1e-6), (steps, res.depth)
+    except ic.StepFailure:
+        pass
+    assert steps >= 60          # it slides along the table for 0.3 s before reaching the edge
