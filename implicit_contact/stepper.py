@@ -673,16 +673,29 @@ class ImplicitContactStepper:
         return ""
 
     def _failure(self, problem, result, specs, t0, h) -> StepReport:
-        worst = int(np.argmax(np.abs(result.x - np.clip(result.x - problem.fun(result.x), problem.lower,
-                                                         problem.upper)))) if np.all(np.isfinite(result.x)) else 0
-        pair_name = "velocities"
+        """A failed step's report: the pair whose rows are worst, the status, the likely cause."""
+        try:
+            F = problem.fun(result.x)
+            nat = np.abs(result.x - np.clip(result.x - F, problem.lower, problem.upper))
+        except (ZeroDivisionError, FloatingPointError, OverflowError):
+            nat = np.full(problem.layout.n, np.nan)
+        pair_name, worst = "", -1.0
         for k, sl in enumerate(problem.layout.pairs):
-            cols = np.concatenate([sl.a1, sl.a2, sl.l1, sl.l2, [sl.p_n], sl.rows_fric])
-            if worst in cols:
-                pair_name = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}"
-        msg = (f"NCP failed at t = {t0:.6g} s ({pair_name}, {result.status.name}, residual "
-               f"{result.residual:.3g} after {result.iterations} iterations). Likely: the time step "
-               f"h = {h:g} is too large for the curvature or speed here; try h/2 or on_failure='retry'.")
+            cols = np.concatenate([sl.a1, sl.a2, sl.l1, sl.l2, [sl.p_n], sl.rows_fric]).astype(int)
+            r = float(np.nanmax(nat[cols])) if np.any(np.isfinite(nat[cols])) else math.inf
+            if r > worst:
+                pair_name, worst = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}", r
+        if result.status is ncp.Status.NOT_FINITE:
+            cause = ("the rows are undefined at an iterate (degenerate geometry, e.g. a contact normal "
+                     "along its tangent axis or a point at a shape's centre)")
+        elif "active k1" in result.message:
+            cause = ("two intersections of functions: the closest point left body 1's active surface "
+                     "k1 and no active one was found (a known limit, [GI] Sec. 7)")
+        else:
+            cause = ("a hard contact transition inside one step (an impact, a face landing on a face, "
+                     "a start from rest with near-zero slip); a smaller h or on_failure='retry' may get through")
+        msg = (f"NCP failed at t = {t0:.6g} s ({pair_name or 'no pair'}, {result.status.name}, residual "
+               f"{result.residual:.3g} after {result.iterations} iterations, h = {h:g}). Likely: {cause}.")
         return StepReport(False, result.iterations, result.residual, result.status.name, (), t0, 1, msg,
                           problem.layout.n)
 
