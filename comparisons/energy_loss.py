@@ -51,12 +51,9 @@ Run: python -m comparisons.energy_loss [--quick | --full] [--detectors fcl,dart,
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import csv
 from dataclasses import dataclass, field, replace
 import math
-import multiprocessing
-import os
 from pathlib import Path
 import time
 
@@ -64,6 +61,7 @@ import numpy as np
 
 from comparisons import dart_native
 from implicit_contact.trajectory import simulate as simulate_stepper
+from comparisons.executors import completed
 
 STEPPERS = ("dart_native", "implicit", "exact")
 STUDIES = ("N", "h")
@@ -286,7 +284,7 @@ def execute(entries, scheduler: str | None = None, max_workers: int | None = Non
             for i, s in enumerate(STUDIES)}
     records = {}
     try:
-        for config, record in _completed(configs, scheduler, max_workers):
+        for config, record in completed(run, configs, _failed, scheduler, max_workers):
             records[config] = record
             for study in studies_of[config]:
                 bars[study].update()
@@ -294,50 +292,6 @@ def execute(entries, scheduler: str | None = None, max_workers: int | None = Non
         for bar in bars.values():
             bar.close()
     return records
-
-
-def _completed(configs, scheduler, max_workers):
-    """Yield (config, record) as runs finish, on the chosen executor."""
-    if scheduler:
-        yield from _completed_dask(configs, scheduler)
-        return
-    workers = (os.cpu_count() or 1) if max_workers is None else int(max_workers)
-    if workers < 0:
-        raise ValueError(f"max_workers must be >= 0 (0: run in this process), got {max_workers!r}")
-    if workers == 0:
-        for config in configs:
-            yield config, _guarded(config)
-        return
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(run, config): config for config in configs}
-        for future in concurrent.futures.as_completed(futures):
-            yield futures[future], _result(future, futures[future])
-
-
-def _completed_dask(configs, scheduler):
-    try:
-        from dask.distributed import Client, as_completed
-    except ImportError as error:
-        raise ImportError("--scheduler needs dask.distributed: pip install '.[cluster]'") from error
-    with Client(scheduler) as client:
-        futures = {client.submit(run, config, pure=False): config for config in configs}
-        for future in as_completed(futures):
-            yield futures[future], _result(future, futures[future])
-
-
-def _guarded(config: RunConfig) -> RunRecord:
-    try:
-        return run(config)
-    except Exception as error:  # one failed configuration must not discard the others
-        return _failed(config, error)
-
-
-def _result(future, config: RunConfig) -> RunRecord:
-    try:
-        return future.result()
-    except Exception as error:
-        return _failed(config, error)
 
 
 # ----------------------------------------------------------------------------------------------

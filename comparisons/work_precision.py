@@ -77,14 +77,12 @@ Run: python -m comparisons.work_precision [--quick] [--scenes disc_rolling,slide
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import csv
 from dataclasses import dataclass, field, replace
 import hashlib
 import importlib
 import importlib.util
 import math
-import multiprocessing
 import os
 from pathlib import Path
 import time
@@ -93,6 +91,7 @@ import numpy as np
 
 from comparisons import dart_native
 from implicit_contact.trajectory import simulate as simulate_stepper
+from comparisons.executors import completed
 
 DEFAULT_OUT = Path(os.path.abspath(__file__)).parent / "out"
 REPO = Path(os.path.abspath(__file__)).parent.parent
@@ -557,52 +556,13 @@ def execute(configs, scheduler: str | None = None, max_workers: int | None = Non
                     disable=not progress) for i, s in enumerate(scenes)}
     records = {}
     try:
-        for config, record in _completed(configs, scheduler, max_workers):
+        for config, record in completed(run, configs, _failed, scheduler, max_workers):
             records[config] = record
             bars[config.scene].update()
     finally:
         for bar in bars.values():
             bar.close()
     return records
-
-
-def _completed(configs, scheduler, max_workers):
-    if scheduler:
-        try:
-            from dask.distributed import Client, as_completed
-        except ImportError as error:
-            raise ImportError("--scheduler needs dask.distributed: pip install '.[cluster]'") from error
-        with Client(scheduler) as client:
-            futures = {client.submit(run, c, pure=False): c for c in configs}
-            for future in as_completed(futures):
-                yield futures[future], _result(future, futures[future])
-        return
-    workers = (os.cpu_count() or 1) if max_workers is None else int(max_workers)
-    if workers < 0:
-        raise ValueError(f"max_workers must be >= 0 (0: run in this process), got {max_workers!r}")
-    if workers == 0:
-        for config in configs:
-            yield config, _guarded(config)
-        return
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-        futures = {pool.submit(run, c): c for c in configs}
-        for future in concurrent.futures.as_completed(futures):
-            yield futures[future], _result(future, futures[future])
-
-
-def _guarded(config):
-    try:
-        return run(config)
-    except Exception as error:  # one failed configuration must not discard the others
-        return _failed(config, error)
-
-
-def _result(future, config):
-    try:
-        return future.result()
-    except Exception as error:
-        return _failed(config, error)
 
 
 # ----------------------------------------------------------------------------------------------

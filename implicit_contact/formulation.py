@@ -76,7 +76,7 @@ comparisons/bench_assembly.py measures it; tests/test_formulation.py checks J by
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 import math
 import weakref
 

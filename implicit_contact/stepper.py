@@ -643,7 +643,6 @@ class ImplicitContactStepper:
     def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
         first, second = spec.objects
         b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
-        d = spec.dim
         p_t = st.p_t
         pt = float(p_t[0]) if len(p_t) else 0.0
         po = float(p_t[1]) if len(p_t) > 1 else 0.0

@@ -20,7 +20,6 @@ the formulation (kind ARTICULATED).
 Run: python -m scenes.gripper_squeeze [--h 0.002] [--squeeze 10] [--duration 1.5]
 """
 import argparse
-from pathlib import Path
 import time
 
 import dartpy as dart
