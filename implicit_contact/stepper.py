@@ -249,11 +249,19 @@ class ImplicitContactStepper:
         return objs
 
     def _check_state_finite(self):
+        """Refuse, before anything is touched, a state DART accepts but no step can use."""
+        if not np.all(np.isfinite(np.asarray(self.world.getGravity(), float))):
+            raise ValueError(f"the world has non-finite gravity {self.world.getGravity()}; the stepper "
+                             "refuses to step it.")
         for s in self.scene.skeletons:
-            q, v = np.asarray(s.skeleton.getPositions()), np.asarray(s.skeleton.getVelocities())
+            sk = s.skeleton
+            q, v = np.asarray(sk.getPositions()), np.asarray(sk.getVelocities())
             if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-                raise ValueError(f"skeleton '{s.skeleton.getName()}' has non-finite positions or "
+                raise ValueError(f"skeleton '{sk.getName()}' has non-finite positions or "
                                  "velocities; the stepper refuses to step it.")
+            if not (np.all(np.isfinite(sk.getForces())) and np.all(np.isfinite(sk.getExternalForces()))):
+                raise ValueError(f"skeleton '{sk.getName()}' has non-finite forces (joint forces or "
+                                 "external forces); the stepper refuses to step it.")
 
     def _check_initial_overlap(self):
         from .closest import closest_points
