@@ -391,6 +391,17 @@ class ImplicitContactStepper:
                 # interpenetrating "touching" points (a box sliding off a table's edge slides down
                 # its side face). Take k1 from the static closest points there and solve again.
                 stale = _inactive_k1(problem, x, self.options.contact_tolerance)
+                through = _passed_through(problem, x)
+                if through and k1_switches < 2:
+                    # the body went through a fixed half-space inside the step (see _passed_through)
+                    k1_switches += 1
+                    reseeded = _reseed(problem, x, self.options.contact_tolerance)
+                    problem._reseeded = False
+                    continue
+                if through:
+                    result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
+                                     message=f"pairs {through} pass through a half-space")
+                    break
                 if stale and k1_switches < 2:
                     k1_switches += 1
                     reseeded = _reseed(problem, x, self.options.contact_tolerance, adopt_k1=stale)
@@ -904,6 +915,24 @@ def _central_touch_point(spec, P1, P2, a, normal, tol):
         if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
             return x
     return a
+
+
+def _passed_through(problem, x) -> list:
+    """Pairs against a fixed half-space whose free multiplier l2 is not positive.
+
+    With a fixed half-space's point reduced onto its plane, the pair 0 <= l2 _|_ -g(a2) is
+    trivial and l2 is free ([GI] Example 1). A body that passes wholly through the half-space in
+    one step then has a spurious solution: a1 on its far side (grad f along +n, l2 = -|grad f|),
+    a2 its projection on the plane, gap >= 0 and no impulse: tunnelling. A valid contact has
+    grad f(a1) along -n, i.e. l2 > 0."""
+    out = []
+    for k, spec in enumerate(problem.specs):
+        sl = problem.layout.pairs[k]
+        # (a fixed half-space as body 1 needs no check: body 2's multipliers are bounded and its
+        # point must then face the plane, and the gap row keeps it above)
+        if spec.obj2.fixed_halfspace and len(sl.l2) and x[int(sl.l2[0])] <= 0.0:
+            out.append(k)
+    return out
 
 
 def _inactive_k1(problem, x, tol) -> list:

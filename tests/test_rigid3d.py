@@ -206,3 +206,22 @@ def test_box_sliding_off_a_table_edge_never_interpenetrates_silently():
     except ic.StepFailure:
         pass
     assert steps >= 60          # it slides along the table for 0.3 s before reaching the edge
+
+
+def test_fast_sphere_does_not_tunnel_through_a_half_space():
+    """100 m/s at h = 0.01: the sphere would cross the plane (and its own diameter 10 times) in
+    one step. With the half-space's point on its plane, eqs (15)-(19) also admit the sphere's far
+    side as a 'closest point' once it is wholly through; the stepper rejects that (l2 <= 0) and the
+    contact stops the sphere at the plane."""
+    h, r = 0.01, 0.1
+    world = _world(h)
+    skel, body = _free_body(world, "bullet", 1.0, [0.004] * 3, [0.0, 0.0, 0.6])
+    skel.setVelocities([0, 0, 0, 0, 0, -100.0])
+    ic.attach(body, ic.shapes.Sphere(r))
+    _ground(world)
+    stepper = ic.ImplicitContactStepper(world)
+    for _ in range(20):
+        rep = stepper.step()
+        assert skel.getPositions()[5] >= r - PEN_TOL
+        assert all(c.gap >= -PEN_TOL for c in rep.contacts)
+    assert skel.getVelocities()[5] == pytest.approx(0.0, abs=1e-9)
