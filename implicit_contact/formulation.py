@@ -703,6 +703,7 @@ class Layout:
     pairs: list                # PairSlots per pair
     lower: np.ndarray
     upper: np.ndarray
+    supports: tuple = ()       # support.SupportSlots per support block (after all pairs)
 
 
 def _position_rows(layout: Layout):
@@ -762,8 +763,9 @@ def _tangent_basis(n, e):
     return np.array([n, t, _V3.cross(n, t)])
 
 
-def build_layout(nv_per_skeleton: list, specs: list) -> Layout:
-    """Allocate z: velocities first, then each pair's unknowns; rows follow the same order."""
+def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = ()) -> Layout:
+    """Allocate z: velocities first, then each pair's unknowns, then the support blocks'
+    (support.SupportSpec); rows follow the same order."""
     lower, upper = [], []
     col = 0
     v_index = []
@@ -830,7 +832,9 @@ def build_layout(nv_per_skeleton: list, specs: list) -> Layout:
                 lower.append(0.0); upper.append(np.inf)
         slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
                                p_n, rows_fric, dbar, dn, p_nr))
-    return Layout(col, v_index, slots, np.array(lower), np.array(upper))
+    from .support import allocate
+    support_slots, col = allocate(col, supports, lower, upper)
+    return Layout(col, v_index, slots, np.array(lower), np.array(upper), tuple(support_slots))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -1010,8 +1014,10 @@ class StepProblem:
     bitwise the same either way; the solver asks for J where it has just evaluated F, and then
     ``jac`` only finishes the pair evaluations that ``fun`` left suspended."""
 
-    def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout):
+    def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout,
+                 supports: tuple = ()):
         self.h = h
+        self.supports = tuple(supports)    # support.SupportSpec per layout.supports block
         self.skeletons = skeletons
         self.bodies = bodies
         self.specs = specs
@@ -1055,6 +1061,11 @@ class StepProblem:
         from .quasi_rigid import CompliantPair
         self._plans = [CompliantPair(self, k) if self._generic(spec) else _PairPlan(self, k, spec, sl)
                        for k, (spec, sl) in enumerate(zip(specs, layout.pairs))]
+        if len(self.supports) != len(layout.supports):
+            raise ValueError("the layout's support blocks and the problem's supports differ")
+        from .support import SupportPlan
+        self._plans += [SupportPlan(self, sp, ss) for sp, ss in zip(self.supports, layout.supports)]
+        self._n_pairs = len(specs)
         self._key_f = self._key_j = None
         self._F = self._J = None
         self._reports = None       # per-pair quantities at _key_f as floats (see _pairs_at)
@@ -1142,7 +1153,7 @@ class StepProblem:
             F[vs] = M @ (z[vs] - v) - hforce
         resume = [self._pair(pl, zl, states, F, need_hessians) if isinstance(pl, _PairPlan)
                   else pl.generator(z, F) for pl in self._plans]
-        pairs = [next(g) for g in resume]
+        pairs = [next(g) for g in resume][: self._n_pairs]     # support blocks yield no report
         F *= self._row_scale
         return F, pairs, resume
 

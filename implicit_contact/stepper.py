@@ -39,6 +39,7 @@ from . import ncp
 from . import shapes as shp
 from .broadphase import Broadphase
 from .params import Compliance, Friction
+from .support import SupportFriction, SupportSpec
 
 
 # ---------------------------------------------------------------------------------------------
@@ -156,6 +157,8 @@ class ImplicitContactStepper:
         self._pair_friction = {}
         self._pair_compliance = {}
         self._last = {}            # pair key -> dict of the last solution (warm start)
+        self._supports = {}        # body index -> SupportFriction (set_support_friction)
+        self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
         self._layout_cache = {}
         self._retrying = False
         self._check_state_finite()
@@ -177,6 +180,31 @@ class ImplicitContactStepper:
             raise ValueError(f"compliance must be an ic.Compliance, got {type(compliance).__name__}")
         ia, ib = self._body_of(node_a), self._body_of(node_b)
         self._pair_compliance[frozenset((ia, ib))] = compliance
+
+    def set_support_friction(self, node, mu: float, normal_force: float, points=((0.0, 0.0),),
+                             torsion_radius: float | None = None) -> None:
+        """Coulomb friction of a planar body against the surface it lies on (2.5D; see
+        implicit_contact/support.py): normal_force [N] (its weight, for a horizontal support) is
+        shared equally by the body-frame support points (k, 2); the friction wrench is bounded by
+        the ellipsoidal limit surface with centre their centroid and torsion radius their mean
+        distance from it (or torsion_radius [m]). Solved in the NCP with the contacts, every
+        step. mu = 0 removes it."""
+        b = self._body_of(node)
+        if self.scene.bodies[b].kind != adapter.PLANAR:
+            raise ValueError(f"support friction needs a body on a PlanarJoint (2.5D); "
+                             f"'{self.scene.bodies[b].name}' is {self.scene.bodies[b].kind}")
+        support = SupportFriction.from_points(mu, normal_force, points, torsion_radius)
+        self._last_support.pop(b, None)
+        if support.mu == 0.0:
+            self._supports.pop(b, None)
+        else:
+            self._supports[b] = support
+
+    def support_wrench(self, node) -> np.ndarray:
+        """The support's friction impulse on a body in the last step, (p_x, p_y, moment about
+        the body origin) [N s, N m s]; zeros if it has no support friction or did not step."""
+        last = self._last_support.get(self._body_of(node))
+        return np.zeros(3) if last is None else last[2].copy()
 
     def _trapezoidal_skeletons(self) -> set:
         """All mobile skeletons when any quasi-rigid layer of the world uses the "midpoint"
@@ -201,6 +229,7 @@ class ImplicitContactStepper:
         self._check_state_finite()
         snap = adapter.snapshot(self.world)
         last_before = dict(self._last)
+        support_before = dict(self._last_support)
         self._retrying = False
         report = self._substeps(h, 1)
         if report.success:
@@ -208,6 +237,7 @@ class ImplicitContactStepper:
             return report
         adapter.restore(self.world, snap)
         self._last = last_before
+        self._last_support = support_before
         if self.on_failure == "retry":
             self._retrying = True
             for k in range(1, self.options.max_halvings + 1):
@@ -218,6 +248,7 @@ class ImplicitContactStepper:
                     return report
                 adapter.restore(self.world, snap)
                 self._last = last_before
+                self._last_support = support_before
             raise StepFailure(report.message + f" Retried with up to {2 ** self.options.max_halvings} "
                               "substeps; the world is unchanged.", report)
         if self.on_failure == "warn":
@@ -342,20 +373,24 @@ class ImplicitContactStepper:
                 # the MCP's v+ differs from free flight: allow half a free step more of motion
                 margins[k] += 0.5 * h * (lin + ang * reach)
         pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
-        if not pairs:
+        supported = sorted(self._supports)
+        if not pairs and not supported:
             midpoint = self._trapezoidal_skeletons()
             for s, rec in enumerate(scene.skeletons):
                 adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h, midpoint=s in midpoint)
             self._last = {}
+            self._last_support = {}
             return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
-        # skeletons that take part in the MCP
-        involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p} - {-1})
+        # skeletons that take part in the MCP (every body with support friction does)
+        involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p}
+                          .union(scene.bodies[b].skeleton_index for b in supported) - {-1})
         sk_pos = {s: k for k, s in enumerate(involved)}
-        body_ids = sorted({self._objects[i].body for p in pairs for i in p})
+        body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = []
         for i, j in pairs:
             specs.append(self._pair_spec(i, j, h, body_pos, states))
+        supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
         nv = [scene.skeletons[s].ndof for s in involved]
         # Friction rows only for pairs that touch: a pair without rows whose solution touches gets
         # them and the step is solved again; a pair with rows whose gap opened (p_n = 0 leaves sigma
@@ -366,7 +401,8 @@ class ImplicitContactStepper:
         cold = cold_tried = False
         k1_switches = 0
         for _attempt in range(8):
-            problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos)
+            problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos,
+                                    supports)
             if reseeded is not None:
                 z0, reseeded = reseeded, None
             elif previous is None:
@@ -457,6 +493,9 @@ class ImplicitContactStepper:
             v_next = z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s]
             adapter.write_velocities_and_integrate(rec, v_next, states[s].v, h, midpoint=s in midpoint)
         self._last = new_last
+        self._last_support = {sp.key: (z[ss.y].copy(), float(z[ss.sigma]), plan.wrench(z))
+                              for sp, ss, plan in zip(problem.supports, layout.supports,
+                                                      problem._plans[len(specs):])}
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, layout.n)
 
@@ -488,17 +527,18 @@ class ImplicitContactStepper:
                                  iterations=result.iterations + polish.iterations)
         return result
 
-    def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos):
+    def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos, supports=()):
         scene = self.scene
         signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim,
                                        sp.obj1.fixed_halfspace, sp.obj2.fixed_halfspace,
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
-                                      for sp in specs))
+                                      for sp in specs),
+                     tuple((sp.body, sp.friction.torsion) for sp in supports))
         layout = self._layout_cache.get(signature)
         if layout is None:
             if len(self._layout_cache) > 256:       # scenes whose pairs keep changing
                 self._layout_cache.clear()
-            layout = self._layout_cache[signature] = fm.build_layout(nv, specs)
+            layout = self._layout_cache[signature] = fm.build_layout(nv, specs, supports)
         kins = []
         midpoint = self._trapezoidal_skeletons()
         for b in body_ids:
@@ -536,7 +576,7 @@ class ImplicitContactStepper:
         blocks = [fm.SkeletonBlock(states[s].M, states[s].v, states[s].force,
                                    next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
                   for s in involved]
-        return fm.StepProblem(h, blocks, kins, specs, layout)
+        return fm.StepProblem(h, blocks, kins, specs, layout, supports)
 
     def _pair_spec(self, i, j, h, body_pos, states):
         scene = self.scene
@@ -657,6 +697,10 @@ class ImplicitContactStepper:
                     z[sl.p_nr] = last["p_nr"] / spec.impulse_scale
                 if last["p_n"] > 0.0 and spring > 0.0 and not cold:
                     z[sl.p_n] = spring / spec.impulse_scale + z[sl.p_nr] * (sl.p_nr >= 0)
+        for sp, ss in zip(problem.supports, lay.supports):
+            last = self._last_support.get(sp.key)
+            if last is not None and not cold and len(last[0]) == ss.y.stop - ss.y.start:
+                z[ss.y], z[ss.sigma] = last[0], last[1]
         return z
 
     def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
@@ -861,6 +905,8 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
     z = np.zeros(new.layout.n)
     for a, b in zip(old.layout.v_index, new.layout.v_index):
         z[b] = x[a]
+    for so, sn in zip(old.layout.supports, new.layout.supports):
+        z[sn.rows] = x[so.rows]
     for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
