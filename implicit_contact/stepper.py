@@ -158,6 +158,7 @@ class ImplicitContactStepper:
         self._pair_compliance = {}
         self._last = {}            # pair key -> dict of the last solution (warm start)
         self._supports = {}        # body index -> SupportFriction (set_support_friction)
+        self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
         self._layout_cache = {}
         self._retrying = False
@@ -397,13 +398,17 @@ class ImplicitContactStepper:
         # undetermined, a singular Jacobian) loses them if the solve failed.
         previous = None            # (problem, x) to warm start a re-solve from
         sliding = []
+        added = []                 # pairs given friction rows by the last re-solve
         reseeded = None
         cold = cold_tried = False
         k1_switches = 0
+        flip_seed, flipped_once = None, set()
         for _attempt in range(8):
             problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos,
                                     supports)
-            if reseeded is not None:
+            if flip_seed is not None:
+                z0, flip_seed = _flip_transfer(*flip_seed, problem), None
+            elif reseeded is not None:
                 z0, reseeded = reseeded, None
             elif previous is None:
                 z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h, cold)
@@ -419,6 +424,7 @@ class ImplicitContactStepper:
             if on or off:
                 previous = (problem, result.x if result.success else z0)
                 sliding = []
+                added = on
                 for k in on + off:
                     specs[k].with_friction = k in on
                 continue
@@ -438,6 +444,23 @@ class ImplicitContactStepper:
                     result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
                                      message=f"pairs {through} pass through a half-space")
                     break
+                flip = [k for k in stale if k not in flipped_once and len(specs[k].obj1.functions) > 1
+                         and len(specs[k].obj2.functions) > 1]
+                if flip:
+                    # two intersections: the side that touches with a face becomes body 1 (see
+                    # _orient_intersections); seeded from static closest points at the iterate
+                    seeds = {}
+                    for k in flip:
+                        flipped_once.add(k)
+                        old = specs[k]
+                        self._orient_intersections(*old.objects, flip=True)
+                        i, j = pairs[k]
+                        new = self._pair_spec(i, j, h, body_pos, states)
+                        new.with_friction, new.tangent_axis = old.with_friction, old.tangent_axis
+                        seeds[k] = _flip_seed(problem, x, new, self.options.contact_tolerance)
+                        specs[k] = new
+                    flip_seed = (problem, x, seeds)
+                    continue
                 if stale and k1_switches < 2:
                     k1_switches += 1
                     reseeded = _reseed(problem, x, self.options.contact_tolerance, adopt_k1=stale)
@@ -448,7 +471,10 @@ class ImplicitContactStepper:
                 break
             if previous is not None and not sliding:
                 # a failed solve from a frictionless solution: restart the stuck contacts sliding
-                sliding = _stuck_sliding(problem, x)
+                # and the pairs that just got friction rows while slipping in the frictionless
+                # solution: a contact brushing past a wall at 1 m/s with a tiny p_n slides, and
+                # from a sticking start Newton stalls with the friction far outside the cone
+                sliding = sorted(set(_stuck_sliding(problem, x)) | set(_slipping(*previous, added)))
                 if sliding:
                     continue
             if not cold_tried and any(sp.key in self._last and self._last[sp.key]["p_n"] > 0.0 for sp in specs):
@@ -588,6 +614,8 @@ class ImplicitContactStepper:
             first, second = (oi, oj) if single_i else (oj, oi)
         elif single_i and oi.fixed_halfspace and not oj.fixed_halfspace:
             first, second = oj, oi
+        elif not single_i:
+            first, second = self._orient_intersections(oi, oj)
         else:
             first, second = oi, oj
         key = (first.key, second.key)
@@ -623,6 +651,32 @@ class ImplicitContactStepper:
         generic = adapter.ARTICULATED in (b1.kind, b2.kind)
         return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
                            compliance, side, delta_prev, generic=generic)
+
+    def _orient_intersections(self, oi, oj, flip=False):
+        """Which of two intersections is body 1 ([GI] eqs 28-32): the side whose closest point
+        lies on one face (one active function, the k1 of eq 28), the other side taking any number
+        of active functions through its bounded multipliers. A box tipping over a table's edge
+        touches the table's edge with its bottom face: the box must be body 1 (with the table as
+        body 1, k1 = the table's top face goes inactive at its edge and eqs 28-32 then admit
+        interpenetrating points). Chosen from the static closest points when the pair appears,
+        kept while it lasts; flip=True swaps it (the stepper's answer to a stale k1)."""
+        pair = frozenset((oi.key, oj.key))
+        known = self._orientation.get(pair)
+        alive = (oi.key, oj.key) in self._last or (oj.key, oi.key) in self._last
+        if flip and known is not None:
+            known = oj.key if known == oi.key else oi.key
+        elif known is None or not alive:
+            from .closest import closest_points
+            pi, pj = (_pose_dim(adapter.body_pose(self.scene.bodies[o.body]), o.piece.dim) for o in (oi, oj))
+            res = closest_points(oi.piece, pi, oj.piece, pj)
+            known = oi.key
+            if res.success:
+                tol = 10.0 * self.options.contact_tolerance
+                counts = [_active_count(o.piece, P, a, tol) for o, P, a in ((oi, pi, res.a1), (oj, pj, res.a2))]
+                if counts[1] < counts[0]:
+                    known = oj.key
+        self._orientation[pair] = known
+        return (oi, oj) if known == oi.key else (oj, oi)
 
     def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h, cold=False):
         """z0 from the last step's solution (closest points carried along, impulses kept); cold:
@@ -805,6 +859,13 @@ class _Object:
         return out
 
 
+def _active_count(piece, pose, a, tol) -> int:
+    """How many of a piece's functions vanish (to tol) at the world point a."""
+    R, p = pose
+    xi = R.T @ (np.asarray(a, float) - p)
+    return sum(abs(float(f.value(xi))) <= tol for f in piece.functions)
+
+
 def _pose_dim(pose, dim):
     R, p = pose
     return (R[:dim, :dim], p[:dim])
@@ -895,7 +956,45 @@ def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
     return s1, s2
 
 
-def _transfer(old, x, new, sliding=()) -> np.ndarray:
+def _flip_seed(problem, x, spec, tol):
+    """Closest points and multipliers (a1, a2, l1, l2) of a pair whose bodies 1 and 2 were just
+    swapped (spec: the new orientation), at the poses the iterate x of ``problem`` implies; sets
+    spec.k1 from them."""
+    from .closest import closest_points
+    P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
+    first, second = spec.objects
+    res = closest_points(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
+    a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+    normal = np.asarray(res.normal, float)
+    if res.overlapping or res.distance <= tol:
+        a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
+    l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
+    spec.k1 = k1
+    return a1, a2, l1, l2
+
+
+def _flip_transfer(old, x, seeds, new) -> np.ndarray:
+    """Warm start after swapping bodies 1 and 2 of the pairs in seeds (k -> _flip_seed): the
+    other unknowns as _transfer; the swapped pairs' points from the seeds and their impulses
+    mapped to the new frame. With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the
+    impulse on the new body 2 is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o,
+    p_r' = p_r; sigma is unchanged."""
+    z = _transfer(old, x, new, skip=seeds)
+    for k, (a1, a2, l1, l2) in seeds.items():
+        so, sn = old.layout.pairs[k], new.layout.pairs[k]
+        new.pack_points(z, k, a1, a2)
+        z[sn.l1], z[sn.l2] = l1, l2
+        z[sn.p_n] = x[so.p_n] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+        if sn.sigma >= 0 and so.sigma >= 0:
+            flip = np.array([-1.0, 1.0][: len(sn.p_t)])
+            z[sn.p_t] = flip * x[so.p_t] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+            if sn.p_r >= 0 and so.p_r >= 0:
+                z[sn.p_r] = x[so.p_r]
+            z[sn.sigma] = x[so.sigma]
+    return z
+
+
+def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
     """Warm start of a re-solve whose pairs gained or lost friction rows: copy what both layouts
     share. New friction rows start at zero impulse and zero slip multiplier, except for the pairs
     in ``sliding``, which start at the sliding solution that the old solution's slip implies
@@ -908,6 +1007,8 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
     for so, sn in zip(old.layout.supports, new.layout.supports):
         z[sn.rows] = x[so.rows]
     for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
+        if k in skip:
+            continue
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
         z[sn.p_n] = x[so.p_n]
@@ -934,11 +1035,28 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
 
 def _stuck_sliding(problem, x) -> list:
     """Pairs held at sigma ~ 0 with their friction outside the cone: the FB valley of a contact
-    that must slide (see _transfer)."""
-    F = problem.fun(x)
+    that must slide (see _transfer). No pairs at an iterate where the rows are undefined (a failed
+    solve that raised inside the rows returns its start)."""
+    try:
+        F = problem.fun(x)
+    except (ZeroDivisionError, FloatingPointError, OverflowError):
+        return []
     out = []
     for k, sl in enumerate(problem.layout.pairs):
         if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
+            out.append(k)
+    return out
+
+
+def _slipping(problem, x, pairs) -> list:
+    """Those of ``pairs`` whose tangential relative velocity at x is not zero."""
+    out = []
+    for k in pairs:
+        try:
+            vt = problem.unpack_pair(x, k).tangents @ problem.relative_velocity(x, k)
+        except (ZeroDivisionError, FloatingPointError, OverflowError):
+            continue
+        if np.any(vt != 0.0):
             out.append(k)
     return out
 
@@ -996,6 +1114,33 @@ def _inactive_k1(problem, x, tol) -> list:
     return out
 
 
+def _below_plane_seed(spec, P):
+    """Seed (a1, a2, normal) of a body overlapping a fixed half-space: its support point along
+    -n (its deepest point below the plane) and that point's projection on the plane; None when
+    neither side is a fixed half-space or the body has no closed-form support point.
+
+    For an overlap closest_points returns a deepest common point in the algebraic sense, which
+    for a body wholly below the plane (a 100 m/s sphere at h = 0.01 s passes through it within
+    one step) is the body's centre: grad f = 0 there, the pair's normal is undefined and the
+    rows divide by zero. Eqs (15)-(18) want a1 on body 1's surface facing the plane (l2 > 0,
+    see _passed_through); the support point is that, at any depth."""
+    first, second = spec.objects
+    for plane, other, P_plane, P_other, plane_is_1 in ((second, first, P[1], P[0], False),
+                                                       (first, second, P[0], P[1], True)):
+        if not plane.fixed_halfspace:
+            continue
+        n_b, d_b = plane.funcs[0].plane()
+        n = P_plane.R @ n_b
+        d = d_b + float(n @ P_plane.p)
+        try:
+            deep = P_other.R @ other.piece.support(P_other.R.T @ (-n)) + P_other.p
+        except NotImplementedError:
+            return None
+        on_plane = deep - (float(n @ deep) - d) * n
+        return (on_plane, deep, n) if plane_is_1 else (deep, on_plane, -n)
+    return None
+
+
 def _reseed(problem, x, tol, adopt_k1=()):
     """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
     replace every pair's closest points and multipliers by the static solution (closest.py) at
@@ -1016,6 +1161,9 @@ def _reseed(problem, x, tol, adopt_k1=()):
         normal = np.asarray(res.normal, float)
         if res.overlapping or res.distance <= tol:
             a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
+        deepest = _below_plane_seed(spec, P) if res.overlapping else None
+        if deepest is not None:
+            a1, a2, normal = deepest
         l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
         if k in adopt_k1:
             spec.k1 = k1         # the caller rebuilds the problem with it

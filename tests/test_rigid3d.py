@@ -177,11 +177,25 @@ def test_dart_box_dropped_on_an_edge_lands_flat_with_the_retry_policy():
     assert np.linalg.norm(v[3:]) < 1e-6          # at rest but for a free spin about z (e_r = 0)
 
 
-def test_box_sliding_off_a_table_edge_never_interpenetrates_silently():
-    """Both bodies intersections: [GI] eqs (28)-(32) need an active k1 on body 1; with k1 stale
-    they admit interpenetrating points (the box would slide down the table's side face). Every
-    accepted step must leave the two boxes apart by the independent static closest-point oracle;
-    a step the stepper cannot solve must raise StepFailure (a known limit: tipping over the edge)."""
+def _hexagonal_prism(world, apothem, half_length, mu, position, velocity):
+    """A prism along y with a regular hexagonal cross-section (8 half-spaces), lying on a face."""
+    skel, body = _free_body(world, "prism", 1.0, [0.02, 0.02, 0.02], position)
+    angles = np.pi / 2 + np.arange(6) * np.pi / 3          # face normals in the xz plane, one down
+    normals = [[math.cos(a), 0.0, math.sin(a)] for a in angles] + [[0.0, 1.0, 0.0], [0.0, -1.0, 0.0]]
+    offsets = [apothem] * 6 + [half_length] * 2
+    ic.attach(body, ic.shapes.Intersection.polytope(normals, offsets), friction=ic.Friction(mu=mu))
+    skel.setVelocities(np.asarray(velocity, float))
+    return skel, ic.shapes.Intersection.polytope(normals, offsets)
+
+
+@pytest.mark.parametrize("body", ["dart box", "hexagonal prism"])
+def test_body_sliding_off_a_table_edge_tips_over_it(body):
+    """Both bodies intersections ([GI] eqs 28-32) with the active surface k1 of body 1 unknown in
+    advance. A body slides along a table, reaches its edge, tips over it and falls. Body 1 must be
+    the side touching with a face (the falling body's bottom face on the table's edge): the
+    stepper swaps the pair's bodies when body 1's k1 goes inactive. Every step succeeds, the two
+    never interpenetrate by the independent static closest-point oracle, the body turns about
+    the edge while touching it, and ends below the table top."""
     from implicit_contact.closest import closest_points
     h = 0.005
     world = _world(h)
@@ -191,33 +205,49 @@ def test_box_sliding_off_a_table_edge_never_interpenetrates_silently():
     node.createCollisionAspect()
     node.createDynamicsAspect().setFrictionCoeff(0.2)
     world.addSkeleton(base)
-    skel = _dart_box(world, (0.4, 0.3, 0.2), 0.2, [0.2, 0.0, 0.2], velocity=[0, 0, 0, 1.2, 0, 0])
-    stepper = ic.ImplicitContactStepper(world)
+    if body == "dart box":
+        skel = _dart_box(world, (0.4, 0.3, 0.2), 0.2, [0.2, 0.0, 0.2], velocity=[0, 0, 0, 1.2, 0, 0])
+        shape = ic.shapes.Intersection.box([0.2, 0.15, 0.1])
+    else:
+        apothem = 0.1
+        skel, shape = _hexagonal_prism(world, apothem, 0.15, 0.2, [0.2, 0.0, 0.1 + apothem], [0, 0, 0, 1.2, 0, 0])
+    stepper = ic.ImplicitContactStepper(world)               # default policy: retry
     table = ic.shapes.Intersection.box([0.5, 0.5, 0.1])
-    box = ic.shapes.Intersection.box([0.2, 0.15, 0.1])
-    steps = 0
-    try:
-        for _ in range(120):
-            stepper.step()
-            steps += 1
-            T = skel.getBodyNode(0).getWorldTransform().matrix()
-            res = closest_points(table, (np.eye(3), np.zeros(3)), box, (T[:3, :3], T[:3, 3]))
-            assert not (res.overlapping and res.depth > 1e-6), (steps, res.depth)
-    except ic.StepFailure:
-        pass
-    assert steps >= 60          # it slides along the table for 0.3 s before reaching the edge
+    tipped_in_contact = False
+    for _ in range(180):
+        rep = stepper.step()
+        assert rep.success
+        T = skel.getBodyNode(0).getWorldTransform().matrix()
+        res = closest_points(table, (np.eye(3), np.zeros(3)), shape, (T[:3, :3], T[:3, 3]))
+        assert not (res.overlapping and res.depth > PEN_TOL), res.depth
+        pitch = math.atan2(T[0, 2], T[2, 2])               # rotation about y
+        touching = any(c.p_n > 0.0 for c in rep.contacts)
+        tipped_in_contact |= touching and pitch > 0.3
+    assert tipped_in_contact                                 # it turned about the edge, touching it
+    assert skel.getPositions()[5] < 0.0                      # and fell off (table top at z = 0.1)
 
 
-def test_fast_sphere_does_not_tunnel_through_a_half_space():
+@pytest.mark.parametrize("speed, z0, friction", [
+    (100.0, 0.6, None),
+    # comparisons.stability's impact cases: with friction rows, the failed solves after the
+    # rejected far-side solution were re-seeded from the static closest points of a sphere wholly
+    # below the plane (its centre, where grad f = 0) and the step raised ZeroDivisionError
+    (100.0, 0.55, ic.Friction(mu=0.5)),
+    (30.0, 0.55, ic.Friction(mu=0.5)),
+])
+def test_fast_sphere_does_not_tunnel_through_a_half_space(speed, z0, friction):
     """100 m/s at h = 0.01: the sphere would cross the plane (and its own diameter 10 times) in
     one step. With the half-space's point on its plane, eqs (15)-(19) also admit the sphere's far
     side as a 'closest point' once it is wholly through; the stepper rejects that (l2 <= 0) and the
     contact stops the sphere at the plane."""
     h, r = 0.01, 0.1
     world = _world(h)
-    skel, body = _free_body(world, "bullet", 1.0, [0.004] * 3, [0.0, 0.0, 0.6])
-    skel.setVelocities([0, 0, 0, 0, 0, -100.0])
-    ic.attach(body, ic.shapes.Sphere(r))
+    skel, body = _free_body(world, "bullet", 1.0, [0.004] * 3, [0.0, 0.0, z0])
+    skel.setVelocities([0, 0, 0, 0, 0, -speed])
+    if friction is None:
+        ic.attach(body, ic.shapes.Sphere(r))
+    else:
+        ic.attach(body, ic.shapes.Sphere(r), friction=friction)
     _ground(world)
     stepper = ic.ImplicitContactStepper(world)
     for _ in range(20):
