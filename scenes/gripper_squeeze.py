@@ -17,9 +17,13 @@ The bodies of one skeleton do not collide with each other (DART's default), the 
 independent force-controlled dofs, and every pair involving a finger runs on the generic path of
 the formulation (kind ARTICULATED).
 
-Run: python -m scenes.gripper_squeeze [--h 0.002] [--squeeze 10] [--duration 1.5]
+Run: python -m scenes.gripper_squeeze [--h 0.002] [--squeeze 10] [--duration 1.5] [--plot]
+(--plot: scenes/out/gripper_squeeze.png, the held grasp next to one squeezed below the threshold:
+finger forces, object and palm heights, and each pad's friction force against mu times its
+normal force.)
 """
 import argparse
+from pathlib import Path
 import time
 
 import dartpy as dart
@@ -98,18 +102,25 @@ def control(gripper, t, squeeze=F_SQUEEZE):
     z, v = gripper.getPositions()[0], gripper.getVelocities()[0]
     f_lift = (M_PALM + 2 * M_FINGER + M_OBJ) * G + KP * (z_d - z) + KD * (v_d - v)
     gripper.setForces([f_lift, squeeze, -squeeze])
+    return f_lift, squeeze, -squeeze
 
 
 # 4. Run
 def run(h=H, duration=1.5, squeeze=F_SQUEEZE, verbose=True):
     world, gripper, obj = build_world(h)
     stepper = ic.ImplicitContactStepper(world)
-    rows = []
+    rows, series = [], []
     t0 = time.perf_counter()
     n = int(round(duration / h))
     for k in range(n):
-        control(gripper, world.getTime(), squeeze)
+        command = control(gripper, world.getTime(), squeeze)
         report = stepper.step()
+        pad_forces = []                      # (normal, friction) per pad [N]
+        for side in ("left", "right"):
+            c = next((c for c in report.contacts if side + "_finger" in c.name_a + c.name_b), None)
+            pad_forces += [0.0, 0.0] if c is None else [c.p_n / h, np.hypot(c.p_t, c.p_o) / h]
+        series.append([world.getTime(), gripper.getPositions()[0], obj.getPositions()[5] - A_OBJ,
+                       *command[1:], *pad_forces])
         if k % max(1, n // 10) == 0 or k == n - 1:
             pads = [c for c in report.contacts if "finger" in c.name_a + c.name_b and c.p_n > 0]
             fn = sum(c.p_n for c in pads) / h / max(len(pads), 1)
@@ -127,7 +138,47 @@ def run(h=H, duration=1.5, squeeze=F_SQUEEZE, verbose=True):
         verdict = "held (no slip)" if abs(zp - zo) < 1e-3 and zo > 0.5 * LIFT else "not lifted (the pads slid)"
         print(f"  palm rose {zp:.4f} m, object {zo:.4f} m: {verdict}")
         print(f"  wall time per step: {1e3 * wall:.2f} ms")
-    return rows, wall
+    return rows, wall, np.array(series)
+
+
+def plot(runs, path, mu=MU):
+    """runs: [(squeeze [N], series from run())]; one column per run."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(3, len(runs), figsize=(5.2 * len(runs), 8.0), sharex=True, squeeze=False,
+                             layout="constrained")
+    for col, (squeeze, S) in enumerate(runs):
+        t = S[:, 0]
+        ax = axes[0, col]
+        ax.plot(t, S[:, 3], label="right joint force (command)")
+        ax.plot(t, -S[:, 4], "--", label="-(left joint force)")
+        ax.plot(t, S[:, 5], ":", label="left pad normal")
+        ax.plot(t, S[:, 7], "-.", label="right pad normal")
+        ax.set_ylim(-0.1 * squeeze, 2.0 * squeeze)     # the landing's impulse peak is cut off
+        ax.set_ylabel("force [N]")
+        ax.set_title(f"squeeze {squeeze:g} N per finger "
+                     f"({'above' if squeeze >= M_OBJ * G / (2 * mu) else 'below'} M g / (2 mu) = "
+                     f"{M_OBJ * G / (2 * mu):.2f} N)")
+        ax.legend(fontsize=7)
+        ax = axes[1, col]
+        ax.plot(t, S[:, 1], label="palm (lift joint)")
+        ax.plot(t, S[:, 2], "--", label="object rise")
+        ax.set_ylabel("height [m]")
+        ax.legend(fontsize=7)
+        ax = axes[2, col]
+        for j, side in ((5, "left"), (7, "right")):
+            ax.plot(t, S[:, j + 1], label=f"{side} pad friction")
+            ax.plot(t, mu * S[:, j], ":", label=f"mu x {side} normal")
+        ax.axhline(M_OBJ * G / 2, color="grey", lw=0.8, label="M g / 2 (weight per pad)")
+        ax.set_ylim(-0.05 * mu * squeeze, 1.5 * mu * squeeze)
+        ax.set_ylabel("force [N]")
+        ax.set_xlabel("t [s]")
+        ax.legend(fontsize=7)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def main(argv=None):
@@ -135,8 +186,16 @@ def main(argv=None):
     ap.add_argument("--h", type=float, default=H)
     ap.add_argument("--squeeze", type=float, default=F_SQUEEZE)
     ap.add_argument("--duration", type=float, default=T_SQUEEZE + T_LIFT + 0.4)
+    ap.add_argument("--plot", action="store_true",
+                    help="write scenes/out/gripper_squeeze.png (this squeeze and 1 N, below the threshold)")
     args = ap.parse_args(argv)
-    run(args.h, args.duration, args.squeeze)
+    _, _, series = run(args.h, args.duration, args.squeeze)
+    if args.plot:
+        weak = 1.0 if args.squeeze != 1.0 else 0.5
+        _, _, slipping = run(args.h, args.duration, weak, verbose=False)
+        path = Path(__file__).resolve().parent / "out" / "gripper_squeeze.png"
+        plot([(args.squeeze, series), (weak, slipping)], path)
+        print(f"wrote {path}")
 
 
 if __name__ == "__main__":

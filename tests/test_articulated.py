@@ -344,7 +344,12 @@ def test_generic_path_equals_hot_path_for_free_bodies(case):
 
 def test_gripper_scene_lifts_when_squeezed_enough():
     from scenes import gripper_squeeze as scene
-    rows, _ = scene.run(h=0.004, duration=scene.T_SQUEEZE + scene.T_LIFT + 0.1, verbose=False)
+    rows, _, series = scene.run(h=0.004, duration=scene.T_SQUEEZE + scene.T_LIFT + 0.1, verbose=False)
+    # the plotted series: commanded finger forces, each pad's normal = the squeeze, friction in the cone
+    last = series[-1]
+    assert last[3] == scene.F_SQUEEZE and last[4] == -scene.F_SQUEEZE
+    np.testing.assert_allclose(last[[5, 7]], scene.F_SQUEEZE, rtol=1e-6)
+    assert np.all(series[:, [6, 8]] <= scene.MU * series[:, [5, 7]] * (1 + 1e-6) + 1e-9)
     t, palm, rise, pads, fn, ft, _ = rows[-1]
     assert pads == 2 and abs(fn - scene.F_SQUEEZE) < 1e-6        # each pad carries the squeeze
     assert rise > 0.9 * scene.LIFT and abs(palm - rise) < 1e-3   # lifted with the palm, no slip
