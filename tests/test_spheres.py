@@ -43,3 +43,11 @@ def test_event_times_converge_in_h(coarse):
     a, b = scene.events(coarse), scene.events(fine)
     for name in a:
         assert abs(a[name] - b[name]) <= EVENT_AGREEMENT, (name, a[name], b[name])
+
+
+def test_start_from_rest_at_small_h_needs_no_retry():
+    """Example 2 from rest at h = 1e-3: the first steps (near-zero slip, two contacts) must solve
+    without the retry policy. Regression: a restart that started every newly rubbing contact
+    sliding made the first step fail at h = 1e-3."""
+    traj = scene.simulate(duration=0.02, h=1e-3, on_failure="raise")
+    assert all(r.success and r.substeps == 1 for r in traj.reports)

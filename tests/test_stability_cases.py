@@ -1,0 +1,54 @@
+"""Regressions from comparisons.stability: cases of the stability matrix that once raised."""
+import time
+
+import numpy as np
+import pytest
+
+import implicit_contact as ic
+from implicit_contact import stepper as stepper_module
+
+PEN_TOL = 1e-6             # [m] the stepper's default contact tolerance
+
+
+def test_seed_of_flat_lying_superquadrics_side_by_side_is_finite():
+    """Two exponent-4 superquadrics lying flat 3.8 cm apart, the second tilted by 6e-10 rad
+    (poses from the 10-bodies case at t = 0.86 s): their equators are coplanar to round-off, the
+    surfaces have zero curvature there and the static KKT solve stalls above its tolerance.
+    The seed of the new pair was NaN and the step raised in nnls; it must be finite and right."""
+    shape = ic.shapes.Superquadric([0.1, 0.08, 0.06], 4.0)
+    pose1 = (np.array([[0.9456573256978044, 0.32516491562602007, -1.7917986887438426e-26],
+                       [-0.32516491562602007, 0.9456573256978044, -1.359813705551827e-26],
+                       [1.252263847353469e-26, 1.8685478616835672e-26, 1.0]]),
+             np.array([0.018480633520426854, 0.031791859248340056, 0.06]))
+    pose2 = (np.array([[-0.12120540664161639, 0.9926274474347566, 3.443226851826329e-10],
+                       [-0.9926274474347566, -0.12120540664161639, -6.149793812683319e-10],
+                       [-5.687116423798959e-10, -4.1632297406955595e-10, 1.0]]),
+             np.array([0.23450218176705181, -0.02875358290200169, 0.060000000000062434]))
+    res = stepper_module._closest_seed(shape, pose1, shape, pose2)
+    assert np.all(np.isfinite(res.a1)) and np.all(np.isfinite(res.a2)) and np.all(np.isfinite(res.normal))
+    # both points on their surfaces, at the distance a brute-force search of the equators finds
+    for a, (R, p) in ((res.a1, pose1), (res.a2, pose2)):
+        assert abs(shape.value(R.T @ (a - p))) < 1e-9
+    theta = np.linspace(0.0, 2 * np.pi, 1501)
+    ring = np.stack([0.1 * np.sign(np.cos(theta)) * np.abs(np.cos(theta)) ** 0.5,
+                     0.08 * np.sign(np.sin(theta)) * np.abs(np.sin(theta)) ** 0.5, 0 * theta], axis=1)
+    w1, w2 = ring @ pose1[0].T + pose1[1], ring @ pose2[0].T + pose2[1]
+    brute = np.min(np.linalg.norm(w1[:, None, :] - w2[None, :, :], axis=2))
+    assert res.distance == pytest.approx(brute, abs=1e-5)          # grid spacing ~4e-4 m, error ~1e-7 m
+
+
+def test_ten_bodies_dropped_into_a_box_get_through_the_first_wall_contacts():
+    """comparisons.stability's 10 bodies: at t = 0.17 s a body falling at 1.2 m/s brushes a wall
+    (tiny p_n). Its friction rows, started sticking, stalled Newton at every h down to h/16
+    (StepFailure). Started sliding, as the frictionless solution's slip says, it converged at h
+    (measured then). One halving is allowed: the trajectory, hence which step is hard, moves with
+    any change of the formulation; the test checks that the landing gets through."""
+    from comparisons.stability import IMPLICIT, many_bodies_world
+
+    world = many_bodies_world(10, 0.01, IMPLICIT)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(max_halvings=1))
+    start = time.perf_counter()
+    for _ in range(19):
+        report = stepper.step()
+        assert all(c.gap >= -PEN_TOL for c in report.contacts)
+    assert time.perf_counter() - start < 60.0      # a stalled solve takes minutes
