@@ -255,3 +255,46 @@ def test_fast_sphere_does_not_tunnel_through_a_half_space(speed, z0, friction):
         assert skel.getPositions()[5] >= r - PEN_TOL
         assert all(c.gap >= -PEN_TOL for c in rep.contacts)
     assert skel.getVelocities()[5] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_hexagon_tips_off_a_wedge_and_lands_on_a_face_2d():
+    """2D, both bodies intersections: a hexagon (six half-planes) dropped onto the vertex of a
+    fixed wedge (a fingertip, [GI] eqs 58-61) first rests its face on the wedge's vertex (body 1:
+    the hexagon), tips, rolls over its own vertex down the wedge's face (body 1: the wedge) and
+    lands on the ground. Every step succeeds with the default policy, the independent static
+    closest-point oracle never finds the hexagon inside the wedge, and it ends lying on a face."""
+    from implicit_contact.closest import closest_points
+    world = _world(0.005, gravity=(0.0, -G, 0.0))
+    skel = dart.dynamics.Skeleton("hexagon")
+    joint, body = skel.createPlanarJointAndBodyNodePair()
+    joint.setXYPlane()
+    body.setMass(1.0)
+    body.setMomentOfInertia(0.01, 0.01, 0.01)
+    apothem = 0.1
+    angles = -np.pi / 2 + np.arange(6) * np.pi / 3
+    hexagon = ic.shapes.Intersection.polytope([[math.cos(a), math.sin(a)] for a in angles], [apothem] * 6)
+    ic.attach(body, hexagon, friction=ic.Friction(mu=0.5))
+    skel.setPositions([0.03, 0.3 + apothem + 1e-3, 0.0])
+    world.addSkeleton(skel)
+    fixed = dart.dynamics.Skeleton("wedge")
+    _, wb = fixed.createWeldJointAndBodyNodePair()
+    s2 = math.sqrt(0.5)
+    wedge = ic.shapes.Intersection.fingertip((0.0, 0.3), (s2, s2), (-s2, s2))    # vertex up at y = 0.3
+    ic.attach(wb, wedge, friction=ic.Friction(mu=0.5))
+    ic.attach(wb, ic.shapes.HalfPlane([0.0, 1.0], 0.0), friction=ic.Friction(mu=0.5))
+    world.addSkeleton(fixed)
+    stepper = ic.ImplicitContactStepper(world)
+    on_wedge_face = False
+    for _ in range(600):
+        rep = stepper.step()
+        assert rep.success
+        q = skel.getPositions()
+        R = np.array([[math.cos(q[2]), -math.sin(q[2])], [math.sin(q[2]), math.cos(q[2])]])
+        res = closest_points(wedge, (np.eye(2), np.zeros(2)), hexagon, (R, q[:2]))
+        assert not (res.overlapping and res.depth > PEN_TOL), res.depth
+        on_wedge_face |= any(c.p_n > 0.0 and c.a1[1] < 0.29 and "wedge" in c.name_a + c.name_b
+                             for c in rep.contacts)           # touching below the wedge's vertex
+    assert on_wedge_face
+    q = skel.getPositions()
+    assert q[1] == pytest.approx(apothem, abs=2e-3)           # on the ground, lying on a face
+    assert abs(math.remainder(q[2], np.pi / 3)) < 0.05
