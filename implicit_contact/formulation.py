@@ -81,6 +81,7 @@ import math
 import weakref
 
 import numpy as np
+import scipy.sparse as _sparse
 
 from . import shapes as shp
 from .params import Friction
@@ -504,8 +505,9 @@ def _eval_functions(funcs, pose: Pose, a, jac=True):
 # an inline kernel for the common primitives, else the shape's own API (about 3-4 us per call
 # through its checks and conversions, ten times the arithmetic of a sphere or a plane), and the
 # Hessian when it is constant: 0.0 (planes), a float c for c I (spheres, discs: rotation
-# invariant, so R H R^T = c I without a product), or the body-frame matrix; None if it varies
-# and comes with each evaluation.
+# invariant, so R H R^T = c I without a product), or the body-frame matrix; for a kernel whose
+# Hessian varies (single-exponent superquadrics), a _HessianKernel evaluated only when the
+# Jacobian needs it; None if it varies and comes with each evaluation of the shape's API.
 _FUNCTION_INFO = weakref.WeakKeyDictionary()
 
 
@@ -516,9 +518,65 @@ def _function_info(fn):
     except KeyError:
         pass
     except TypeError:            # not weak-referenceable: classify every time (rare)
-        return _kernel(fn), _classify_hessian(fn)
-    info = _FUNCTION_INFO[fn] = (_kernel(fn), _classify_hessian(fn))
+        return _classify(fn)
+    info = _FUNCTION_INFO[fn] = _classify(fn)
     return info
+
+
+def _classify(fn):
+    kern, hi = _kernel(fn), _classify_hessian(fn)
+    if kern is not None and hi is None:
+        hi = _hessian_kernel(fn)
+        if hi is None:           # a kernel needs its Hessian from somewhere: use the shape's API
+            kern = None
+    return kern, hi
+
+
+class _HessianKernel:
+    """The body-frame Hessian of a kernel function at xi (a tuple), as a (d, d) array."""
+
+    __slots__ = ("at",)
+
+    def __init__(self, at):
+        self.at = at
+
+
+def _late_hessian(fn, hi, x):
+    """A Hessian the rows left for the Jacobian: hi is None (the shape's API at the array x),
+    (kernel, xi) from _evaluate, or already a float / matrix."""
+    if hi is None:
+        return np.asarray(fn.hessian(x), float)
+    if type(hi) is tuple:
+        return hi[0].at(hi[1])
+    return hi
+
+
+def _hessian_kernel(fn):
+    """_HessianKernel of a single-exponent superquadric / superellipse (the only kernel with a
+    varying Hessian): R0 diag(s (q - 1) |X_i|^(q-2) / a_i^2) R0^T, X = R0^T (x - c) / a; checked
+    against the shape's hessian like _kernel_agrees, else None."""
+    if not (isinstance(fn, shp._PowerSumBase) and fn._single):
+        return None
+    a = tuple(float(v) for v in fn.semi_axes)
+    q, sm = float(fn._n1), float(fn._s)
+    c = tuple(float(v) for v in fn._c0)
+    R0n = np.array(fn._R0, float)
+    R0 = tuple(map(tuple, R0n.tolist()))
+    V = _VEC[len(a)]
+    rotated = bool(fn._rotated)
+
+    def at(x):
+        xl = V.mtv(R0, V.sub(x, c))
+        diag = [sm * (q - 1.0) * abs(u / ai) ** (q - 2.0) / (ai * ai) for u, ai in zip(xl, a)]
+        return (R0n * diag) @ R0n.T if rotated else np.diag(diag)
+
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        x = rng.normal(size=fn.dim) * 0.7
+        H = np.asarray(fn.hessian(x), float)
+        if np.max(np.abs(at(tuple(x.tolist())) - H)) > 1e-12 * (1.0 + np.max(np.abs(H))):
+            return None
+    return _HessianKernel(at)
 
 
 def _classify_hessian(fn):
@@ -562,6 +620,23 @@ def _kernel(fn):
         else:
             def kern(x, n0=n[0], n1=n[1]):
                 return n0 * x[0] + n1 * x[1] - off, n
+    elif isinstance(fn, shp._PowerSumBase) and fn._single:
+        # X = R0^T (x - c) / a: f = (s/q)(sum |X_i|^q - 1), grad = R0 (s |X_i|^(q-1) sgn X_i / a_i)
+        a = tuple(float(v) for v in fn.semi_axes)
+        q, sm = float(fn._n1), float(fn._s)
+        c = tuple(float(v) for v in fn._c0)
+        R0 = tuple(map(tuple, np.asarray(fn._R0, float).tolist()))
+        V = _VEC[len(a)]
+        kq = sm / q
+
+        def kern(x):
+            v, gl = 0.0, []
+            for u, ai in zip(V.mtv(R0, V.sub(x, c)), a):
+                X = u / ai
+                A1 = abs(X) ** (q - 1.0)
+                v += A1 * abs(X)
+                gl.append(sm * (A1 if X >= 0.0 else -A1) / ai)
+            return kq * (v - 1.0), V.mv(R0, gl)
     elif kind in (shp.Ellipsoid, shp.Ellipse):
         # xl = R0^T (x - c), X = xl / a: f = (s/2)(|X|^2 - 1), grad = R0 (s X / a), s = (prod a)^(1/d)
         a = tuple(float(v) for v in fn.semi_axes)
@@ -606,6 +681,8 @@ def _evaluate(funcs, infos, S: _BodyNow, a, V, need_h):
     for fn, (kern, hi) in zip(funcs, infos):
         if kern is not None:
             v, g = kern(xi)
+            if type(hi) is _HessianKernel:
+                hi = hi.at(xi) if need_h else (hi, xi)      # see _late_hessian
         else:
             if x is None:
                 x = np.array(xi)
@@ -867,13 +944,14 @@ class PairState:
 
 class _Side:
     """A moving body of a pair: the sign of the pair's impulse on it (+1 body 2, -1 body 1), its
-    velocity rows vs in z, and the window columns of omega and v_o (free v = [omega; v_o],
-    planar v = [v_x, v_y, omega]; see _PairPlan)."""
+    velocity rows vs in z (F), the same rows in the plan's Jacobian block jv (vs itself on the
+    dense path, local rows on the sparse path), and the block columns of omega and v_o (free
+    v = [omega; v_o], planar v = [v_x, v_y, omega]; see _PairPlan)."""
 
-    __slots__ = ("sign", "vs", "free", "ow", "ov", "th_rows", "B2w")
+    __slots__ = ("sign", "vs", "jv", "free", "ow", "ov", "th_rows", "B2w")
 
-    def __init__(self, sign, vs, free, first):
-        self.sign, self.vs, self.free = sign, vs, free
+    def __init__(self, sign, vs, free, first, jv):
+        self.sign, self.vs, self.free, self.jv = sign, vs, free, jv
         self.ow, self.ov = (first, first + 3) if free else (first + 2, first)
         self.th_rows = None            # rows of its TH in the plan's Bg (free bodies: set per call)
 
@@ -882,11 +960,17 @@ class _PairPlan:
     """Everything about one pair that does not depend on z, prepared once per problem.
 
     Jacobian (see StepProblem._pair). A pair's rows and unknowns form one contiguous block of z,
-    and it touches only its moving bodies' velocities, which come first in z: every row of the
-    pair lives in the column window [lo, hi) from the first of those velocities to the end of the
-    block, and is written into J through a view of it. Every chain-rule term is a small
-    coefficient (built from floats) times a basis row block over the window, so each row family
-    costs one matrix product whatever the number of terms. The bases, (rows x window):
+    and it touches only its moving bodies' velocities, which come first in z. Its Jacobian lives
+    on the columns (and rows) of those velocities and of its block, which the plan addresses in
+    one of two ways, fixed by the problem (StepProblem: "Jacobian storage"):
+      dense: J is the problem's (n x n) array, and the columns are the window [lo, hi) from the
+        first of those velocities to the end of the block (``cols``), written through views;
+      sparse: J is the pair's own dense block over ``local_index`` = [velocities of body 1,
+        velocities of body 2, its block] (rows and columns alike), and ``cols`` is all of it. The
+        window of a many-body problem is as wide as z; this block has about 30 columns.
+    Every chain-rule term is a small coefficient (built from floats) times a basis row block over
+    those columns, so each row family costs one matrix product whatever the number of terms. The
+    bases, (rows x columns):
 
       Bg = [DR11; DR12; TH1; DR22; TH2; E_l1; E_l2]    rows (15)-(19) and dn (TH only if moving)
       B2 = [DR2; dn; E_imp; -DR1; EV2; EW2; -EV1; -EW1]    friction rows, impulse rows (windows)
@@ -923,15 +1007,16 @@ class _PairPlan:
         self.axis_src = self.axis = None       # spec.tangent_axis as floats (the stepper may set it late)
         # the rest depends only on the layout, the bodies' kinds, columns and h, and the reduced
         # points' T: built once and kept with the layout's slots (the stepper reuses layouts)
+        compact = problem._sparse
         key = (d, kin1.kind, kin2.kind, kin1.h, kin2.h, _first(kin1.vindex), _first(kin2.vindex),
-               None if r1 is None else r1[1].tobytes(), None if r2 is None else r2[1].tobytes())
+               None if r1 is None else r1[1].tobytes(), None if r2 is None else r2[1].tobytes(), compact)
         cache = sl.__dict__.setdefault("_plan_geometry", {})
         geometry = cache.get(key)
         if geometry is None:
             if len(cache) > 16:
                 cache.clear()
             geometry = cache[key] = _pair_geometry(sl, d, kin1, kin2, problem._vslice[self.b1],
-                                                   problem._vslice[self.b2], r1, r2, self.fr)
+                                                   problem._vslice[self.b2], r1, r2, self.fr, compact)
         self.__dict__.update(geometry)
 
 
@@ -939,9 +1024,10 @@ def _first(index):
     return None if index is None else int(index[0])
 
 
-def _pair_geometry(sl, d, kin1, kin2, vs1, vs2, r1, r2, fr):
+def _pair_geometry(sl, d, kin1, kin2, vs1, vs2, r1, r2, fr, compact=False):
     """The z-independent attributes of a _PairPlan that depend on the layout and the bodies only
-    (row and column slices, moving sides, the bases Bg and B2), as a dict."""
+    (row and column slices, moving sides, the bases Bg and B2), as a dict. compact: address the
+    Jacobian as the pair's own block over local_index (the sparse path, see _PairPlan)."""
     dth = 3 if d == 3 else 1
     m1, m2 = len(sl.l1), len(sl.l2)
     g = {}
@@ -950,27 +1036,62 @@ def _pair_geometry(sl, d, kin1, kin2, vs1, vs2, r1, r2, fr):
     c0 = int(sl.rows_geo[0])
     hi = (sl.sigma if fr else sl.p_n) + 1
     g["rows"] = slice(c0, hi)
-    g["geo_rows"], g["n_geo"] = slice(c0, sl.p_n + 1), sl.p_n + 1 - c0
-    g["fric_rows"] = slice(int(sl.p_t[0]), hi) if fr else None
-    # the column window and the moving sides
-    lo = min([c0] + [int(kin.vindex[0]) for kin in (kin1, kin2) if kin.vindex is not None])
-    g["cols"], nw = slice(lo, hi), hi - lo
-    side2 = None if kin2.vindex is None else _Side(1.0, vs2, kin2.kind == FREE, int(kin2.vindex[0]) - lo)
-    side1 = None if kin1.vindex is None else _Side(-1.0, vs1, kin1.kind == FREE, int(kin1.vindex[0]) - lo)
+    g["n_geo"] = sl.p_n + 1 - c0
+    # the Jacobian's columns: segments (first index in z, count, first column of J's block)
+    moving = [(int(kin.vindex[0]), len(kin.vindex)) for kin in (kin1, kin2) if kin.vindex is not None]
+    if compact:
+        segs, at = [], 0
+        for first, count in moving + [(c0, hi - c0)]:
+            segs.append((first, count, at))
+            at += count
+        nw = at
+        g["local_index"] = np.concatenate([np.arange(f, f + c) for f, c, _ in segs])
+    else:
+        lo = min([c0] + [first for first, _ in moving])
+        segs, nw = [(lo, hi - lo, 0)], hi - lo
+        g["local_index"] = None
+
+    def loc(index):
+        """The column of J's block (and, on the sparse path, its row) of index in z."""
+        for first, count, at in segs:
+            if first <= index < first + count:
+                return index - first + at
+        raise AssertionError("an index outside the pair's columns")
+
+    def rows_of(first, count):
+        """Rows first .. first + count of z as J's rows (a slice)."""
+        return slice(loc(first), loc(first) + count) if compact else slice(first, first + count)
+
+    g["cols"] = slice(0, nw) if compact else slice(segs[0][0], segs[0][0] + nw)
+    g["geo_rows"] = rows_of(c0, sl.p_n + 1 - c0)
+    g["fric_rows"] = rows_of(int(sl.p_t[0]), hi - int(sl.p_t[0])) if fr else None
+    side2 = side1 = None
+    if kin2.vindex is not None:
+        first = int(kin2.vindex[0])
+        side2 = _Side(1.0, vs2, kin2.kind == FREE, loc(first), rows_of(first, len(kin2.vindex)) if compact else vs2)
+    if kin1.vindex is not None:
+        first = int(kin1.vindex[0])
+        side1 = _Side(-1.0, vs1, kin1.kind == FREE, loc(first), rows_of(first, len(kin1.vindex)) if compact else vs1)
     g["side1"], g["side2"] = side1, side2
 
     def unit(first, count):
+        """Unit rows of the unknowns first .. first + count of z."""
         E = np.zeros((count, nw))
-        E[:, first - lo:first - lo + count] = np.eye(count)
+        E[:, loc(first):loc(first) + count] = np.eye(count)
+        return E
+
+    def unit_local(at, count):
+        E = np.zeros((count, nw))
+        E[:, at:at + count] = np.eye(count)
         return E
 
     DA1, DA2 = np.zeros((d, nw)), np.zeros((d, nw))
-    DA1[:, int(sl.a1[0]) - lo:int(sl.a1[-1]) + 1 - lo] = _EYE[d] if r1 is None else r1[1]
-    DA2[:, int(sl.a2[0]) - lo:int(sl.a2[-1]) + 1 - lo] = _EYE[d] if r2 is None else r2[1]
+    DA1[:, loc(int(sl.a1[0])):loc(int(sl.a1[-1])) + 1] = _EYE[d] if r1 is None else r1[1]
+    DA2[:, loc(int(sl.a2[0])):loc(int(sl.a2[-1])) + 1] = _EYE[d] if r2 is None else r2[1]
     EV, EW, DP, TH = {}, {}, {None: 0.0}, {}
     for side, kin in ((side1, kin1), (side2, kin2)):
         if side is not None:
-            EV[side], EW[side] = unit(side.ov + lo, d), unit(side.ow + lo, dth)
+            EV[side], EW[side] = unit_local(side.ov, d), unit_local(side.ow, dth)
             DP[side] = kin.h * EV[side]
             TH[side] = np.zeros((3, nw)) if side.free else kin.h * EW[side]
     DR11, DR12, DR22 = DA1 - DP[side1], DA2 - DP[side1], DA2 - DP[side2]
@@ -1012,11 +1133,38 @@ class StepProblem:
     ``fun`` evaluates the rows only (line-search trials need no Jacobian); ``jac`` evaluates both
     and caches them for the last z. Both run the same code for the rows (``_pair``), so F is
     bitwise the same either way; the solver asks for J where it has just evaluated F, and then
-    ``jac`` only finishes the pair evaluations that ``fun`` left suspended."""
+    ``jac`` only finishes the pair evaluations that ``fun`` left suspended.
+
+    Jacobian storage. Below SPARSE_MIN_UNKNOWNS unknowns (``jacobian="auto"``) J is a dense
+    (n x n) array; from there on a scipy.sparse CSR matrix (``ncp.solve_mcp`` then factorises it
+    with sparse LU). A many-body problem has thousands of unknowns but each pair touches about 30
+    of them: dense J and its LU grow as n^2 and n^3, and a pair's dense column window (see
+    _PairPlan) as wide as z. The sparse path gives every plan a dense block over its own indices
+    and sums the blocks into CSR through a pattern fixed per problem (_sparse_pattern).
+
+    Plan protocol (every entry of ``_plans``: the hot-path pairs _PairPlan, and the generic
+    plans quasi_rigid.CompliantPair and support.SupportPlan; a new kind of block follows it):
+      * ``plan.generator(z, F)`` returns a generator. ``next()`` adds the plan's rows into F
+        (unscaled; F's rows are scaled afterwards) and yields its report (pairs) or None.
+        ``send(J)`` then adds its Jacobian entries into J and yields (the rows' frame is kept,
+        so nothing is recomputed); J may also never be sent (fun only).
+      * ``plan.local_index``: the indices of z of every row and every column it writes into J
+        (its own rows / unknowns and its bodies' velocities), an int array.
+      * J is addressed with z's indices, ``J[rows, cols] = ...`` / ``+=`` / ``-=``, rows and
+        cols each an int, a contiguous slice or an index array: on the dense path J is the
+        (n x n) array, on the sparse path a _LocalJacobian over local_index (writing outside
+        it raises IndexError). Entries start at zero and several plans may add to one entry
+        (the velocity rows of a body); a plan must not read entries others wrote. The hot
+        path _PairPlan instead receives the plain local block (its slices are precomputed).
+    Row scaling (_row_scale) is applied by the assembly, after every plan has written."""
 
     def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout,
-                 supports: tuple = ()):
+                 supports: tuple = (), jacobian: str = "auto"):
+        if jacobian not in ("auto", "dense", "sparse"):
+            raise ValueError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
         self.h = h
+        # Jacobian storage (see the class docstring): sparse from SPARSE_MIN_UNKNOWNS unknowns
+        self._sparse = jacobian == "sparse" or (jacobian == "auto" and layout.n >= SPARSE_MIN_UNKNOWNS)
         self.supports = tuple(supports)    # support.SupportSpec per layout.supports block
         self.skeletons = skeletons
         self.bodies = bodies
@@ -1066,6 +1214,7 @@ class StepProblem:
         from .support import SupportPlan
         self._plans += [SupportPlan(self, sp, ss) for sp, ss in zip(self.supports, layout.supports)]
         self._n_pairs = len(specs)
+        self._pattern = None       # the sparse path's index pattern (see _sparse_pattern)
         self._key_f = self._key_j = None
         self._F = self._J = None
         self._reports = None       # per-pair quantities at _key_f as floats (see _pairs_at)
@@ -1158,6 +1307,8 @@ class StepProblem:
         return F, pairs, resume
 
     def _jacobian(self, resume):
+        if self._sparse:
+            return self._jacobian_sparse(resume)
         n = self.layout.n
         J = np.zeros((n, n))
         for vs, M, _, _ in self._skel:
@@ -1166,6 +1317,47 @@ class StepProblem:
             g.send(J)
         J *= self._row_scale_col
         return J
+
+    def _sparse_pattern(self):
+        """The sparse path's fixed pattern (the layout does not change within a problem): every
+        block (a skeleton's M, a plan's Jacobian block over its local_index) is a dense square
+        view into one value buffer; summing duplicates of (row, column) in CSR order is one
+        bincount through a precomputed slot per buffer entry."""
+        n = self.layout.n
+        index = [np.arange(vs.start, vs.stop) for vs, _, _, _ in self._skel]
+        index += [np.asarray(pl.local_index, dtype=np.int64) for pl in self._plans]
+        sizes = [len(ix) * len(ix) for ix in index]
+        ends = np.cumsum([0] + sizes)
+        values = np.zeros(int(ends[-1]))
+        views = [values[a:b].reshape(len(ix), len(ix)) for a, b, ix in zip(ends[:-1], ends[1:], index)]
+        if index:
+            rows = np.concatenate([np.repeat(ix, len(ix)) for ix in index])
+            cols = np.concatenate([np.tile(ix, len(ix)) for ix in index])
+        else:
+            rows = cols = np.zeros(0, np.int64)
+        keys, slot = np.unique(rows * n + cols, return_inverse=True)
+        entry_rows = keys // n
+        indptr = np.zeros(n + 1, np.int64)
+        np.cumsum(np.bincount(entry_rows, minlength=n), out=indptr[1:])
+        n_sk = len(self._skel)
+        blocks = [view if isinstance(pl, _PairPlan) else _LocalJacobian(view, ix)
+                  for pl, view, ix in zip(self._plans, views[n_sk:], index[n_sk:])]
+        self._pattern = (values, views[:n_sk], blocks, slot.ravel(), len(keys), keys % n, indptr,
+                         self._row_scale[entry_rows])
+        return self._pattern
+
+    def _jacobian_sparse(self, resume):
+        """J as a scipy.sparse CSR matrix from the plans' blocks (see _sparse_pattern)."""
+        values, sk_views, blocks, slot, nnz, indices, indptr, scale = self._pattern or self._sparse_pattern()
+        values[:] = 0.0
+        for view, (_, M, _, _) in zip(sk_views, self._skel):
+            view[:] = M
+        for g, block in zip(resume, blocks):
+            g.send(block)
+        data = np.bincount(slot, weights=values, minlength=nnz)
+        data *= scale
+        n = self.layout.n
+        return _sparse.csr_matrix((data, indices, indptr), shape=(n, n))
 
     def _pair(self, pl: _PairPlan, zl, states, F, need_h):
         """One pair, in two phases (a generator). next() writes its rows into F and yields its
@@ -1186,12 +1378,12 @@ class StepProblem:
         if pl.red1 is None:
             r11, f1, G1, H1, x11 = _evaluate(pl.fns1, pl.infos1, S1, a1, V, need_h)
         else:
-            r11, f1, G1, H1 = None, None, pl.Gc1, pl.Hc1
+            r11, f1, G1, H1, x11 = None, None, pl.Gc1, pl.Hc1, None
         r12, f12, G12, _, _ = _evaluate(pl.fns1, pl.infos1, S1, a2, V, False)
         if pl.red2 is None:
             r22, f2, G2, H2, x22 = _evaluate(pl.fns2, pl.infos2, S2, a2, V, need_h)
         else:
-            r22, f2, G2, H2 = None, None, pl.Gc2, pl.Hc2
+            r22, f2, G2, H2, x22 = None, None, pl.Gc2, pl.Hc2, None
 
         # -- (15)-(19)
         if m1 == 1:
@@ -1290,8 +1482,8 @@ class StepProblem:
         if has2 and side2.free:
             S2.theta_into(Bg[side2.th_rows, side2.ow:side2.ow + 3])
         # Hessians that vary with the point and were not evaluated with the rows
-        H1 = [np.asarray(fn.hessian(x11), float) if hi is None else hi for fn, hi in zip(pl.fns1, H1)]
-        H2 = [np.asarray(fn.hessian(x22), float) if hi is None else hi for fn, hi in zip(pl.fns2, H2)]
+        H1 = [_late_hessian(fn, hi, x11) for fn, hi in zip(pl.fns1, H1)]
+        H2 = [_late_hessian(fn, hi, x22) for fn, hi in zip(pl.fns2, H2)]
         s1, M1 = _hessian_sum(c1, H1, S1)
         s2, M2 = _hessian_sum(l2, H2, S2)
         H1r, C1 = _curvature(s1, M1, N1, r11, V, has1)
@@ -1401,9 +1593,9 @@ class StepProblem:
                         flat += rest + drc
                 C = np.fromiter(flat, float, len(flat)).reshape(-1, 2 * d + pl.n_imp)
                 if side.sign > 0.0:
-                    J[side.vs, pl.cols] -= C @ side.B2w
+                    J[side.jv, pl.cols] -= C @ side.B2w
                 else:
-                    J[side.vs, pl.cols] += C @ side.B2w
+                    J[side.jv, pl.cols] += C @ side.B2w
         yield
 
     # -- reading the solution --------------------------------------------------------------------
@@ -1427,6 +1619,47 @@ class StepProblem:
         P2 = self.bodies[b2].pose(self.body_velocity(z, b2))
         return _relative_velocity(z, P1, P2, self._vslice[b1], self._vslice[b2], a1, a2, T1, T2, sl, False)[0]
 
+
+class _LocalJacobian:
+    """A plan's Jacobian block on the sparse path (see StepProblem, "Jacobian storage"): a dense
+    (m, m) array over the plan's local_index (sorted or not; rows and columns alike), indexed
+    with z's indices like the dense J: an int, a contiguous slice, or an index array per axis.
+    Writing outside local_index raises IndexError."""
+
+    __slots__ = ("array", "index", "_order", "_sorted")
+
+    def __init__(self, array, index):
+        self.array, self.index = array, index
+        self._order = np.argsort(index, kind="stable")
+        self._sorted = index[self._order]
+
+    def _local(self, key):
+        if isinstance(key, slice):
+            start, stop, step = key.indices(int(self._sorted[-1]) + 1 if len(self._sorted) else 0)
+            count = len(range(start, stop, step))
+            if count == 0:
+                return slice(0, 0)
+            at = self._local(start)
+            if step != 1 or self._local(start + count - 1) != at + count - 1:
+                raise IndexError(f"{key} is not one contiguous block of the plan's local_index")
+            return slice(at, at + count)
+        keys = np.asarray(key)
+        pos = np.searchsorted(self._sorted, keys)
+        if np.any(pos >= len(self._sorted)) or np.any(self._sorted[np.minimum(pos, len(self._sorted) - 1)] != keys):
+            raise IndexError(f"index {key} is outside the plan's local_index")
+        local = self._order[pos]
+        return int(local) if local.ndim == 0 else local
+
+    def __getitem__(self, key):
+        r, c = key
+        return self.array[self._local(r), self._local(c)]
+
+    def __setitem__(self, key, value):
+        r, c = key
+        self.array[self._local(r), self._local(c)] = value
+
+
+SPARSE_MIN_UNKNOWNS = 250   # measured crossover of the dense and the sparse J + LU (comparisons/bench_many_bodies.py)
 
 _EMPTY = np.zeros(0)
 _ZERO3 = np.zeros(3)

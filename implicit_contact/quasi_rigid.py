@@ -48,6 +48,20 @@ class CompliantPair:
     def __init__(self, problem, k):
         self.problem, self.k = problem, k
 
+    @property
+    def local_index(self) -> np.ndarray:
+        """Indices of z (sorted) of every row and column its Jacobian writes: its bodies'
+        velocities and its own block (the plan protocol of formulation.StepProblem)."""
+        pb = self.problem
+        spec, sl = pb.specs[self.k], pb.layout.pairs[self.k]
+        end = max(sl.p_n, sl.sigma, sl.p_r, sl.dbar, sl.dn, sl.p_nr) + 1
+        parts = [np.arange(int(sl.rows_geo[0]), end)]
+        for b in (spec.obj1.body, spec.obj2.body):
+            vs = pb._vslice[b]
+            if vs is not None:
+                parts.append(np.arange(vs.start, vs.stop))
+        return np.unique(np.concatenate(parts))
+
     def generator(self, z, F):
         report = self._evaluate(z, F, None)
         J = yield report

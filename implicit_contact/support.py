@@ -123,6 +123,13 @@ class SupportPlan:
         self.scale = fr.mu * fr.normal_force * problem.h     # mu P
         self.impulse = self.scale * self.E.T                 # generalized impulse = impulse @ y
 
+    @property
+    def local_index(self) -> np.ndarray:
+        """Indices of z (sorted) of every row and column its Jacobian writes: the body's
+        velocities and its own block (the plan protocol of formulation.StepProblem)."""
+        rows = self.sl.rows
+        return np.concatenate([np.arange(self.vs.start, self.vs.stop), np.arange(rows.start, rows.stop)])
+
     def generator(self, z, F):
         self._rows(z, F)
         J = yield None

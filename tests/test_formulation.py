@@ -150,3 +150,96 @@ def test_quasi_rigid_step_jacobian_matches_central_differences(case):
     assert np.max(np.abs(J - J_fd) / scale) <= ATOL_FD
     # the layer adds dbar, delta_n and, with a finite core, p_nr
     assert sl.dbar >= 0 and sl.dn >= 0 and (sl.p_nr >= 0) == math.isfinite(compliance.delta_max)
+
+
+def _many_body_problem(dim, jacobian, seed=7):
+    """A fixed ground (body 0) and five moving bodies: each on the ground, a chain of body / body
+    pairs sharing bodies, one quasi-rigid and one generic rigid pair (the generic plan protocol);
+    in 2D one body also has support friction (support.SupportPlan, the same protocol)."""
+    from implicit_contact.support import SupportFriction, SupportSpec
+    rng = np.random.default_rng(seed)
+    kind = "free" if dim == 3 else "planar"
+    bodies, nv, col = [_body("fixed", dim, rng, 0)[0]], [], 0
+    for _ in range(5):
+        kin, k = _body(kind, dim, rng, col)
+        bodies.append(kin)
+        nv.append(k)
+        col += k
+    if dim == 3:
+        ground = shp.HalfSpace([0, 0, 1], 0.0)
+        pieces = [shp.Sphere(0.4), shp.Ellipsoid([0.5, 0.3, 0.4]), shp.Superquadric([0.4, 0.3, 0.2], 4.0),
+                  shp.Intersection.box([0.3, 0.2, 0.25]), shp.Sphere(0.3, center=[0.1, 0.0, 0.0])]
+        fr, axis = Friction(0.3, 1.0, 0.8, 0.2), np.array([1.0, 0.0, 0.0])
+    else:
+        ground = shp.HalfPlane([0.0, 1.0], 0.0)
+        pieces = [shp.Disc(0.4), shp.Ellipse([0.5, 0.3]), shp.Superellipse([0.4, 0.3], 4.0),
+                  shp.Intersection.rectangle([0.3, 0.2]), shp.Disc(0.3, center=[0.1, 0.0])]
+        fr, axis = Friction(0.4), None
+    obj = [fm.ContactObject(b, tuple(p.functions), False) for b, p in enumerate(pieces, start=1)]
+    specs = [fm.PairSpec(("g", b), obj[b - 1], fm.ContactObject(0, (ground,), True), dim, fr, b % 2 == 1, 0, axis, 0.05)
+             for b in range(1, 6)]
+    for b in range(1, 4):
+        specs.append(fm.PairSpec((b, b + 1), obj[b - 1], obj[b], dim, fr, True, 0, axis, 0.05))
+    specs.append(fm.PairSpec((4, 5), obj[3], obj[4], dim, fr, True, 0, axis, 0.05,
+                             compliance=Compliance(1e3, 1.0, 0.02), compliant_side=2, delta_prev=0.003))
+    specs.append(fm.PairSpec((1, 5), obj[0], obj[4], dim, fr, True, 0, axis, 0.05, generic=True))
+    supports = (SupportSpec(2, SupportFriction(0.3, 5.0, (0.1, 0.0), 0.2)),) if dim == 2 else ()
+    layout = fm.build_layout(nv, specs, supports)
+    blocks = []
+    for b, kin in enumerate(bodies):
+        if kin.vindex is not None:
+            k = len(kin.vindex)
+            A = rng.normal(size=(k, k))
+            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    problem = fm.StepProblem(H, blocks, bodies, specs, layout, supports, jacobian=jacobian)
+    z = 0.3 * rng.normal(size=layout.n)
+    for sl in layout.pairs:
+        for idx in (sl.l1, sl.l2):
+            z[idx] = np.abs(z[idx]) + 0.5
+        z[sl.p_n] = abs(z[sl.p_n]) + 0.3
+        if sl.dn >= 0:
+            z[sl.dn] = 0.01
+        if sl.sigma >= 0:
+            z[sl.sigma] = abs(z[sl.sigma]) + 0.2
+    for ss in layout.supports:
+        z[ss.sigma] = abs(z[ss.sigma]) + 0.2
+    return problem, z
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
+    """The sparse path (per-plan blocks over local columns, generic plans through _LocalJacobian)
+    gives the dense path's J, and the same F bitwise from fun and from jac."""
+    import scipy.sparse as sp
+    dense, z = _many_body_problem(dim, "dense")
+    sparse, _ = _many_body_problem(dim, "sparse")
+    assert not dense._sparse and sparse._sparse
+    Js = sparse.jac(z)
+    assert sp.issparse(Js)
+    np.testing.assert_array_equal(sparse.fun(z), dense.fun(z))
+    np.testing.assert_array_equal(sparse.fun(z), sparse._assemble(z, False)[0])
+    Jd = dense.jac(z)
+    scale = np.maximum(1.0, np.abs(Jd))
+    assert np.max(np.abs(Js.toarray() - Jd) / scale) <= 1e-14      # summation order only
+    # and a solve from the same start takes the same path
+    from implicit_contact import ncp
+    opts = ncp.SolverOptions(max_iterations=3)
+    rd = ncp.solve_mcp(dense.fun, dense.jac, z, dense.lower, dense.upper, opts)
+    rs = ncp.solve_mcp(sparse.fun, sparse.jac, z, sparse.lower, sparse.upper, opts)
+    assert rd.steps == rs.steps
+    np.testing.assert_allclose(rs.x, rd.x, rtol=1e-9, atol=1e-9)
+
+
+def test_local_jacobian_translates_indices_and_refuses_foreign_ones():
+    index = np.array([3, 4, 5, 10, 11, 20])
+    block = fm._LocalJacobian(np.zeros((6, 6)), index)
+    block[slice(3, 6), 10] = [1.0, 2.0, 3.0]
+    block[np.array([20, 4]), slice(10, 12)] += np.ones((2, 2))
+    block[11, 3] -= 5.0
+    J = np.zeros((21, 21))
+    J[np.ix_(index, index)] = block.array
+    assert J[5, 10] == 3.0 and J[20, 11] == 1.0 and J[4, 10] == 3.0 and J[11, 3] == -5.0
+    assert J.sum() == 1.0 + 2.0 + 3.0 + 4.0 - 5.0
+    for bad in ((6, 3), (3, slice(4, 11)), (np.array([3, 7]), 3)):
+        with pytest.raises(IndexError):
+            block[bad] = 1.0
