@@ -35,8 +35,9 @@ Executors and scale. Trials are independent: a local process pool on all cores b
 Dask cluster (see comparisons/executors.py and comparisons/energy_loss.py for starting one with this
 repository on PYTHONPATH). A tqdm bar counts finished trials. Every finished trial is appended at
 once to the results file (``grasp_trials.csv``) with the study's settings; a rerun with the same
-settings skips the trials already there, so an interrupted study resumes, and the original
-100,800 trials (--trials 265 on this grid) are reached by adding workers, not by rewriting.
+settings skips the trials already there (those that raised run again), so an interrupted study
+resumes, and the original 100,800 trials (--trials 265 on this grid) are reached by adding
+workers, not by rewriting.
 Throughput: trials per second per core = trials / (sum of their wall times), and trials per second
 of the whole run.
 
@@ -258,12 +259,21 @@ def study(xs=XS, ys=YS, trials: int = 1, mu_support=MEDIUM, mu_gripper=MEDIUM, s
         path.unlink()
     configs = plan(xs, ys, trials, mu_support, mu_gripper, seed, h)
     tag = configs[0].settings
-    done = {(r["x_mm"], r["y_mm"], r["trial"]) for r in read_trials(path) if r["settings"] == tag}
+    # a trial that raised (a run error: a missing module on a Dask worker, a killed process) is not
+    # a result: a resumed study runs it again, and its new row supersedes the old one
+    done = {(r["x_mm"], r["y_mm"], r["trial"]) for r in read_trials(path)
+            if r["settings"] == tag and r["kind"] != "run error"}
     todo = [c for c in configs if c.key not in done]
     workers = (os.cpu_count() or 1) if max_workers is None else max(int(max_workers), 1)
     ran, elapsed = execute(todo, path, scheduler, max_workers, progress)
     wanted = {c.key for c in configs}
-    rows = [r for r in read_trials(path) if r["settings"] == tag and (r["x_mm"], r["y_mm"], r["trial"]) in wanted]
+    latest = {}
+    for r in read_trials(path):
+        if r["settings"] == tag and (r["x_mm"], r["y_mm"], r["trial"]) in wanted:
+            key = (r["x_mm"], r["y_mm"], r["trial"])
+            if r["kind"] != "run error" or latest.get(key, r)["kind"] == "run error":
+                latest[key] = r          # a trial's last result counts; a run error only if it has none
+    rows = list(latest.values())
     summary = summarise(rows, xs, ys)
     todo_keys = {c.key for c in todo}
     this_run = [r for r in rows if (r["x_mm"], r["y_mm"], r["trial"]) in todo_keys]
@@ -507,8 +517,13 @@ def main(argv=None) -> StudyResult:
                    progress=not a.no_progress, fresh=a.fresh)
     print("\n".join(report_lines(result.summary)))
     print("wrote " + ", ".join(str(p) for p in result.paths.values()))
+    errors = [r for r in result.rows if r["kind"] == "run error"]
+    if errors:
+        print(f"{len(errors)} trials raised (run error), e.g. {errors[0]['reason']}; they are not results. "
+              "Run the same command again to retry them (with --scheduler, every worker must import this "
+              "checkout: start the workers from it or put it on their PYTHONPATH).")
     return result
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(1 if any(r["kind"] == "run error" for r in main().rows) else 0)

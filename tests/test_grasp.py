@@ -126,6 +126,16 @@ def test_tiny_grid_runs_through_the_process_pool_and_resumes_its_results_file(tm
     with open(path, newline="") as handle:
         assert len(list(csv.DictReader(handle))) == 2
     assert (tmp_path / "grasp_cells.csv").exists() and (tmp_path / "grasp.md").exists()
+    # a trial that raised is not a result: the next run retries it and its new row supersedes it
+    rows = list(csv.DictReader(open(path, newline="")))
+    broken = dict(rows[1], kind="run error", success="0", reason="run error: ModuleNotFoundError: scenes")
+    with open(path, "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=grasp.TRIAL_FIELDS)
+        writer.writeheader()
+        writer.writerows([rows[0], broken])
+    retried = grasp.study(max_workers=0, **cells)
+    assert retried.ran == 1 and len(retried.rows) == 2
+    assert all(r["kind"] != "run error" for r in retried.rows)
 
 
 def test_plan_draws_reproducible_frictions_in_range():
