@@ -29,6 +29,7 @@ import time
 import numpy as np
 
 from implicit_contact import formulation as fm
+from implicit_contact.testing import random_blocks, random_point
 from implicit_contact import shapes as shp
 from implicit_contact.params import Friction
 
@@ -83,20 +84,9 @@ def build(fm, case, seed=0):
     axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
     spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05)
     layout = fm.build_layout(nv, [spec])
-    blocks = []
-    for b, kin in enumerate(bodies):
-        if kin.vindex is not None:
-            k = len(kin.vindex)
-            A = rng.normal(size=(k, k))
-            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    blocks = random_blocks(bodies, rng)
     problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = 0.3 * rng.normal(size=layout.n)
-    sl = layout.pairs[0]
-    for idx in (sl.l1, sl.l2):
-        z[idx] = np.abs(z[idx]) + 0.5
-    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
-    if sl.sigma >= 0:
-        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
+    z = random_point(layout, rng)
     return problem, z
 
 

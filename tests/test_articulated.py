@@ -8,6 +8,7 @@ import pytest
 
 import implicit_contact as ic
 from implicit_contact import formulation as fm
+from implicit_contact.testing import random_blocks, random_point
 from implicit_contact import shapes as shp
 from implicit_contact.closest import closest_points
 from implicit_contact.params import Friction
@@ -267,24 +268,12 @@ def _problem(kinds, piece1, piece2, friction, rng, generic=False, reduced=(False
     spec = fm.PairSpec(("a", "b"), o1, o2, 3, friction, friction.active, 0, np.array([1.0, 0.0, 0.0]), 0.05,
                        generic=generic)
     layout = fm.build_layout(nv, [spec])
-    blocks = []
-    for b, kin in enumerate(bodies):
-        if kin.vindex is not None:
-            k = len(kin.vindex)
-            A = rng.normal(size=(k, k))
-            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    blocks = random_blocks(bodies, rng)
     return fm.StepProblem(H, blocks, bodies, [spec], layout), layout
 
 
 def _point(layout, rng):
-    z = 0.3 * rng.normal(size=layout.n)
-    sl = layout.pairs[0]
-    for idx in (sl.l1, sl.l2):
-        z[idx] = np.abs(z[idx]) + 0.5
-    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
-    if sl.sigma >= 0:
-        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
-    return z
+    return random_point(layout, rng)
 
 
 ART_CASES = [

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from implicit_contact import formulation as fm
+from implicit_contact.testing import random_blocks, random_point
 from implicit_contact import shapes as shp
 from implicit_contact.params import Compliance, Friction
 
@@ -56,20 +57,9 @@ def test_step_jacobian_matches_central_differences(case):
     axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
     spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05)
     layout = fm.build_layout(nv, [spec])
-    blocks = []
-    for b, kin in enumerate(bodies):
-        if kin.vindex is not None:
-            k = len(kin.vindex)
-            A = rng.normal(size=(k, k))
-            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    blocks = random_blocks(bodies, rng)
     problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = 0.3 * rng.normal(size=layout.n)
-    sl = layout.pairs[0]
-    for idx in (sl.l1, sl.l2):
-        z[idx] = np.abs(z[idx]) + 0.5
-    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
-    if sl.sigma >= 0:
-        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
+    z = random_point(layout, rng)
     J = problem.jac(z).copy()
     np.testing.assert_array_equal(problem.fun(z), problem._assemble(z, False)[0])
     J_fd = np.empty_like(J)
@@ -125,21 +115,10 @@ def test_quasi_rigid_step_jacobian_matches_central_differences(case):
     spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05,
                        compliance=compliance, compliant_side=side, delta_prev=0.003)
     layout = fm.build_layout(nv, [spec])
-    blocks = []
-    for b, kin in enumerate(bodies):
-        if kin.vindex is not None:
-            k = len(kin.vindex)
-            A = rng.normal(size=(k, k))
-            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    blocks = random_blocks(bodies, rng)
     problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = 0.3 * rng.normal(size=layout.n)
+    z = random_point(layout, rng)
     sl = layout.pairs[0]
-    for idx in (sl.l1, sl.l2):
-        z[idx] = np.abs(z[idx]) + 0.5
-    z[sl.p_n] = abs(z[sl.p_n]) + 0.3
-    z[sl.dn] = 0.01
-    if sl.sigma >= 0:
-        z[sl.sigma] = abs(z[sl.sigma]) + 0.2
     J = problem.jac(z).copy()
     J_fd = np.empty_like(J)
     for i in range(layout.n):
@@ -185,24 +164,9 @@ def _many_body_problem(dim, jacobian, seed=7):
     specs.append(fm.PairSpec((1, 5), obj[0], obj[4], dim, fr, True, 0, axis, 0.05, generic=True))
     supports = (SupportSpec(2, SupportFriction(0.3, 5.0, (0.1, 0.0), 0.2)),) if dim == 2 else ()
     layout = fm.build_layout(nv, specs, supports)
-    blocks = []
-    for b, kin in enumerate(bodies):
-        if kin.vindex is not None:
-            k = len(kin.vindex)
-            A = rng.normal(size=(k, k))
-            blocks.append(fm.SkeletonBlock(A @ A.T + k * np.eye(k), rng.normal(size=k), rng.normal(size=k), b))
+    blocks = random_blocks(bodies, rng)
     problem = fm.StepProblem(H, blocks, bodies, specs, layout, supports, jacobian=jacobian)
-    z = 0.3 * rng.normal(size=layout.n)
-    for sl in layout.pairs:
-        for idx in (sl.l1, sl.l2):
-            z[idx] = np.abs(z[idx]) + 0.5
-        z[sl.p_n] = abs(z[sl.p_n]) + 0.3
-        if sl.dn >= 0:
-            z[sl.dn] = 0.01
-        if sl.sigma >= 0:
-            z[sl.sigma] = abs(z[sl.sigma]) + 0.2
-    for ss in layout.supports:
-        z[ss.sigma] = abs(z[ss.sigma]) + 0.2
+    z = random_point(layout, rng)
     return problem, z
 
 
