@@ -53,12 +53,16 @@ class StepperOptions:
     retry_iterations_factor: substeps of a retried step get this many times the solver's
         max_iterations (hard steps converge slowly rather than not at all).
     check_penetration_at_start: refuse worlds whose bodies overlap when the stepper is built.
+    skip_far_pairs: leave out of the MCP the candidate pairs that cannot touch within the step (a
+        known gap larger than a bound on the pieces' relative motion), checked again with the
+        solved velocities (see ImplicitContactStepper._far_pairs); False keeps every candidate.
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
     max_halvings: int = 4
     retry_iterations_factor: int = 4
     check_penetration_at_start: bool = True
+    skip_far_pairs: bool = True
 
     def __post_init__(self):
         if not (self.contact_tolerance > 0 and math.isfinite(self.contact_tolerance)):
@@ -160,6 +164,7 @@ class ImplicitContactStepper:
         self._supports = {}        # body index -> SupportFriction (set_support_friction)
         self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
+        self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
         self._layout_cache = {}
         self._retrying = False
         self._check_state_finite()
@@ -231,6 +236,7 @@ class ImplicitContactStepper:
         snap = adapter.snapshot(self.world)
         last_before = dict(self._last)
         support_before = dict(self._last_support)
+        far_before = dict(self._far)
         self._retrying = False
         report = self._substeps(h, 1)
         if report.success:
@@ -239,6 +245,7 @@ class ImplicitContactStepper:
         adapter.restore(self.world, snap)
         self._last = last_before
         self._last_support = support_before
+        self._far = far_before
         if self.on_failure == "retry":
             self._retrying = True
             for k in range(1, self.options.max_halvings + 1):
@@ -250,6 +257,7 @@ class ImplicitContactStepper:
                 adapter.restore(self.world, snap)
                 self._last = last_before
                 self._last_support = support_before
+                self._far = far_before
             raise StepFailure(report.message + f" Retried with up to {2 ** self.options.max_halvings} "
                               "substeps; the world is unchanged.", report)
         if self.on_failure == "warn":
@@ -344,7 +352,8 @@ class ImplicitContactStepper:
             out.append((i, j))
         return out
 
-    def _one_step(self, h) -> StepReport:
+    def _one_step(self, h, keep=frozenset()) -> StepReport:
+        """One step of h; keep: candidate pairs the far-pair filter must not leave out."""
         scene = self.scene
         t0 = self.world.getTime()
         states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None, h,
@@ -374,13 +383,21 @@ class ImplicitContactStepper:
                 # the MCP's v+ differs from free flight: allow half a free step more of motion
                 margins[k] += 0.5 * h * (lin + ang * reach)
         pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
+        if keep:
+            pairs = sorted(set(pairs) | keep)
+        candidates = frozenset(pairs)
+        pairs, far = self._far_pairs(pairs, v_free, h, keep)
         supported = sorted(self._supports)
         if not pairs and not supported:
+            far_next, violated = self._far_after(far, v_free, h)
+            if violated:
+                return self._one_step(h, keep | violated)
             midpoint = self._trapezoidal_skeletons()
             for s, rec in enumerate(scene.skeletons):
                 adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h, midpoint=s in midpoint)
             self._last = {}
             self._last_support = {}
+            self._far = far_next
             return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
         # skeletons that take part in the MCP (every body with support friction does)
         involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p}
@@ -517,21 +534,139 @@ class ImplicitContactStepper:
                                   "deflection": float(z[sl.dn]) if sl.dn >= 0 else 0.0,
                                   "deflection_prev": spec.delta_prev,
                                   "p_nr": spec.impulse_scale * float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0,
-                                  "k": spec.compliance.k_n if spec.compliance is not None else 0.0}
+                                  "k": spec.compliance.k_n if spec.compliance is not None else 0.0,
+                                  # Euclidean distance of the separated pieces (their closest points
+                                  # solve eqs 15-18 exactly); gap is body 1's function at a2, an
+                                  # algebraic distance that may exceed it
+                                  "distance": float(np.linalg.norm(st.a2 - st.a1)) if st.gap > 0.0 else 0.0}
         bad = self._check_solution(contacts, specs)
         if bad:
             return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
                               t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", layout.n)
+        v_solved = [z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s] for s in range(len(scene.skeletons))]
+        far_next, violated = self._far_after(far, v_solved, h)
+        violated |= self._uncovered(candidates, v_solved, v_free, states, poses_now, margins, h)
+        if violated:
+            # a pair left out could touch at the solved velocities: solve the step again with it
+            return self._one_step(h, keep | violated)
         midpoint = self._trapezoidal_skeletons()
         for s, rec in enumerate(scene.skeletons):
-            v_next = z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s]
-            adapter.write_velocities_and_integrate(rec, v_next, states[s].v, h, midpoint=s in midpoint)
+            adapter.write_velocities_and_integrate(rec, v_solved[s], states[s].v, h, midpoint=s in midpoint)
         self._last = new_last
+        self._far = far_next
         self._last_support = {sp.key: (z[ss.y].copy(), float(z[ss.sigma]), plan.wrench(z))
                               for sp, ss, plan in zip(problem.supports, layout.supports,
                                                       problem._plans[len(specs):])}
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, layout.n)
+
+    # -- pairs that cannot touch within the step -------------------------------------------------
+    def _far_pairs(self, pairs, v_free, h, keep):
+        """Split broadphase candidates into the pairs the MCP needs and the far ones it does not.
+
+        A pair is far when a lower bound g of its gap at the start of the step (the gap of its last
+        solution, exact for a rigid pair whose bodies moved as the formulation moves them, or the
+        bound carried from the step that left it out) exceeds a bound on how much the step can close
+        it (the solver's tolerance on the closest points is 10 contact tolerances off g): a point of
+        piece i at distance <= rho_i from its body's origin moves by at most
+        h (|v_i| + |omega_i| rho_i), so the gap shrinks by at most
+            delta = h |v_i - v_j| + h (|omega_i| rho_i + |omega_j| rho_j)
+        at the velocities the step ends with. Those are not known yet: the prediction uses the
+        free-flight velocities plus one free step of each body's own motion (as the broadphase
+        margins do, doubled), and _far_after checks the solved velocities; a pair that fails that
+        check is solved with the others (the step runs again). Only rigid pairs of single-body
+        free, planar or fixed skeletons integrated by backward Euler qualify. Returns (the pairs
+        to solve, {pair: g} of those left out)."""
+        if not self.options.skip_far_pairs or self._trapezoidal_skeletons():
+            return pairs, {}
+        near, far = [], {}
+        for i, j in pairs:
+            g = self._known_gap(i, j) if (i, j) not in keep else None
+            if g is not None:
+                mi, mj = self._motion(i, v_free), self._motion(j, v_free)
+                reach = h * (mi[1] * mi[2] + mj[1] * mj[2])
+                own = h * (np.linalg.norm(mi[0]) + np.linalg.norm(mj[0])) + reach
+                if g > h * np.linalg.norm(mi[0] - mj[0]) + reach + own + 10.0 * self.options.contact_tolerance:
+                    far[(i, j)] = g
+                    continue
+            near.append((i, j))
+        return near, far
+
+    def _far_after(self, far, v_solved, h):
+        """({pair: lower bound of its gap after the step}, pairs whose bound the solved velocities
+        do not keep above the contact tolerance)."""
+        bounds, violated = {}, set()
+        for (i, j), g in far.items():
+            mi, mj = self._motion(i, v_solved), self._motion(j, v_solved)
+            left = g - h * (np.linalg.norm(mi[0] - mj[0]) + mi[1] * mi[2] + mj[1] * mj[2])
+            if left <= self.options.contact_tolerance:
+                violated.add((i, j))
+            bounds[frozenset((self._objects[i].key, self._objects[j].key))] = left
+        return bounds, frozenset(violated)
+
+    def _uncovered(self, candidates, v_solved, v_free, states, poses_now, margins, h):
+        """Pairs the broadphase did not offer that the solved step could bring into contact.
+
+        The candidates come from the free-flight motion plus a margin (see _one_step). An impact can
+        change a body's velocity by more than that margin covers (a ball at rest knocked into a wall
+        1 cm away, measured: 3 cm deep before this check). Each object's end pose is at most
+        h (|dv| + |d omega| rho) from its predicted one (dv: solved minus free-flight velocity);
+        if that exceeds the margin's motion allowance, the broadphase runs again at the solved end
+        poses and the pairs it finds that were not candidates are returned."""
+        scene = self.scene
+        moved = False
+        tol = self.options.contact_tolerance
+        for k, o in enumerate(self._objects):
+            rec = scene.bodies[o.body]
+            if rec.skeleton_index < 0:
+                continue
+            if rec.kind == adapter.ARTICULATED or o.radius is None:
+                moved = True
+                break
+            dv = np.asarray(v_solved[rec.skeleton_index]) - np.asarray(v_free[rec.skeleton_index])
+            lin, ang = (np.linalg.norm(dv[:2]), abs(dv[2])) if rec.kind == adapter.PLANAR else \
+                (np.linalg.norm(dv[3:6]), np.linalg.norm(dv[:3]))
+            if h * (lin + ang * o.radius) > margins[k] - 9.0 * tol:
+                moved = True
+                break
+        if not moved:
+            return frozenset()
+        midpoint = self._trapezoidal_skeletons()
+        poses_end = {}
+        for s, rec in enumerate(scene.skeletons):
+            v_end = 0.5 * (states[s].v + v_solved[s]) if s in midpoint else v_solved[s]
+            for b in rec.body_indices:
+                poses_end[b] = _predict_body_pose(scene.bodies[b], states[s], v_end, h)
+        after = self._pairs_at(poses_now, np.full(len(self._objects), 10.0 * tol), extra_poses=poses_end)
+        return frozenset(p for p in after if p not in candidates)
+
+    def _known_gap(self, i, j):
+        """A lower bound of the gap of candidate pair (i, j) now, or None (see _far_pairs)."""
+        oi, oj = self._objects[i], self._objects[j]
+        if oi.compliance is not None or oj.compliance is not None:
+            return None
+        bi, bj = self.scene.bodies[oi.body], self.scene.bodies[oj.body]
+        if any(b.kind not in (adapter.FREE, adapter.PLANAR, adapter.FIXED) for b in (bi, bj)):
+            return None
+        if frozenset((bi.index, bj.index)) in self._pair_compliance:
+            return None
+        if any(o.radius is None and self.scene.bodies[o.body].kind != adapter.FIXED for o in (oi, oj)):
+            return None
+        last = self._last.get((oi.key, oj.key)) or self._last.get((oj.key, oi.key))
+        if last is not None:
+            return last["distance"] - 10.0 * self.options.contact_tolerance if last["p_n"] == 0.0 else None
+        return self._far.get(frozenset((oi.key, oj.key)))
+
+    def _motion(self, k, velocities):
+        """(linear velocity of the body origin (3,), |omega|, rho) of object k's body."""
+        o = self._objects[k]
+        rec = self.scene.bodies[o.body]
+        if rec.kind == adapter.FIXED:
+            return _ZERO3, 0.0, 0.0
+        v = velocities[rec.skeleton_index]
+        if rec.kind == adapter.PLANAR:
+            return np.array([v[0], v[1], 0.0]), abs(float(v[2])), o.radius
+        return np.asarray(v[3:6], float), float(np.linalg.norm(v[:3])), o.radius
 
     # -- pieces of a step ------------------------------------------------------------------------
     def _solve(self, problem, z0):
@@ -848,6 +983,8 @@ class _Object:
             half[:d] = 0.5 * (hi - lo)
             self._sphere = (centre, half)
             self.offset = float(np.linalg.norm(centre))
+        # the farthest any point of the piece is from its body's origin (None: unbounded)
+        self.radius = self.offset + float(np.linalg.norm(self._sphere[1])) if piece.bounded else None
         self._last = None
 
     def box(self, pose):
@@ -864,6 +1001,9 @@ class _Object:
         out = _aabb3(self.piece, pose)
         self._last = (R.copy(), p.copy(), out)
         return out
+
+
+_ZERO3 = np.zeros(3)
 
 
 def _active_count(piece, pose, a, tol) -> int:
