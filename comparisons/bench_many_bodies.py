@@ -19,8 +19,12 @@ the same Newton paths, contacts and unknowns both ways):
         30      5-17   748-869                 1776                  389
        100     17-67  2737-3333               18924                 2627   (free fall: 1770 -> 359)
     fit t = a n_contacts^b: before 0.0096 s n^1.88, after 0.0212 s n^1.18 (CPU time).
-What remains is Python per pair: ~290 candidate pairs x ~35 Newton iterations per step (two
-solves: the stepper re-solves after switching friction rows on) x ~0.25 ms per pair and iteration.
+Then pairs that cannot close within the step left out of the MCP (StepperOptions.skip_far_pairs;
+same trajectories): 100 bodies ~175 instead of ~290 pairs per landing step; median CPU ms per
+landed step 65 / 190 / 915 for 10 / 30 / 100 bodies (free fall 11 / 25 / 79), fit
+t = 0.0089 s n^1.17.
+What remains is Python per pair: ~175 pairs x ~30 Newton iterations per step (two solves: the
+stepper re-solves after switching friction rows on) x ~0.2 ms per pair and iteration.
 
 Run: python -m comparisons.bench_many_bodies [--bodies 10 30 100] [--steps 16] [--jacobian auto]
 """

@@ -98,10 +98,10 @@ SCALING_BODIES_GOAL = 100
 PROBE_MAX_BODIES = 12       # worlds with more bodies probe only body/half-space pairs
 DEFAULT_OUT = Path(__file__).resolve().parent / "out"
 MODES = ("quick", "default", "full")
-# (bodies, wall budget [s] of stepping) per mode. Measured (dartpy 6.20, 2 cores, sparse Jacobian;
-# comparisons/bench_many_bodies.py): 100 bodies take ~0.36 s per step in free fall and ~2.6 s per
-# step once 17-67 contacts are active (steps 10-15); the default's 45 s reach the first landing
-# steps. The budget is checked between steps, so one retried step can overrun it.
+# (bodies, wall budget [s] of stepping) per mode. Measured (dartpy 6.20, 2 cores, sparse Jacobian,
+# far pairs left out; comparisons/bench_many_bodies.py): 100 bodies take ~0.08 s per step in free
+# fall and ~0.9 s per step once 17-67 contacts are active (steps 10-15); the default's 45 s reach
+# past the first landings. The budget is checked between steps, so one retried step can overrun it.
 MANY_BODY_BUDGETS = {"quick": ((10, 15.0),), "default": ((10, 90.0), (30, 90.0), (100, 45.0)),
                      "full": ((10, 900.0), (30, 900.0), (100, 900.0))}
 IMPLICIT, NATIVE = "implicit", "dart_native"
@@ -1334,11 +1334,12 @@ def rows(records: dict) -> list[dict]:
 
 
 # why the scaling goal is out of reach (measured with comparisons/bench_many_bodies.py, sparse Jacobian)
-SCALING_LIMIT_WHY = ("why: every Newton iteration evaluates every candidate pair, touching or not, in Python "
-                     "(~0.25 ms per pair per iteration; 100 bodies carry ~290 candidate pairs and take ~35 "
-                     "iterations per landing step, two solves when friction rows switch on), so the time grows "
-                     "with candidate pairs times iterations, faster than with active contacts; sparse LU is ~2 % "
-                     "of it. 50 ms needs the pair rows batched across pairs (numpy) or compiled")
+SCALING_LIMIT_WHY = ("why: every Newton iteration evaluates every pair of the MCP, touching or not, in Python "
+                     "(~0.2 ms per pair per iteration; 100 bodies carry ~175 pairs that could close within the "
+                     "step, of ~290 broadphase candidates, and take ~30 iterations per landing step, two solves "
+                     "when friction rows switch on), so the time grows with pairs times iterations, faster than "
+                     "with active contacts; sparse LU is ~2 % of it. 50 ms needs the pair rows batched across "
+                     "pairs (numpy) or compiled")
 
 
 def goal_row(fit: ScalingFit | None) -> dict:

@@ -165,6 +165,8 @@ class ImplicitContactStepper:
         self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
         self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
+        self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
+        self._left_out = False     # this step left a far pair out
         self._layout_cache = {}
         self._retrying = False
         self._check_state_finite()
@@ -238,6 +240,7 @@ class ImplicitContactStepper:
         support_before = dict(self._last_support)
         far_before = dict(self._far)
         self._retrying = False
+        self._all_pairs = self._left_out = False
         report = self._substeps(h, 1)
         if report.success:
             adapter.finish_step(self.world, h)
@@ -246,6 +249,19 @@ class ImplicitContactStepper:
         self._last = last_before
         self._last_support = support_before
         self._far = far_before
+        if self._left_out:
+            # the far pairs left out change the Newton path, not the solution; a failed step is
+            # solved again with every candidate before anything else (measured: 30 bodies in a
+            # box, a landing step that failed at h / 16 without them converged at h in 7 iterations)
+            self._all_pairs = True
+            report = self._substeps(h, 1)
+            if report.success:
+                adapter.finish_step(self.world, h)
+                return report
+            adapter.restore(self.world, snap)
+            self._last = last_before
+            self._last_support = support_before
+            self._far = far_before
         if self.on_failure == "retry":
             self._retrying = True
             for k in range(1, self.options.max_halvings + 1):
@@ -577,7 +593,7 @@ class ImplicitContactStepper:
         check is solved with the others (the step runs again). Only rigid pairs of single-body
         free, planar or fixed skeletons integrated by backward Euler qualify. Returns (the pairs
         to solve, {pair: g} of those left out)."""
-        if not self.options.skip_far_pairs or self._trapezoidal_skeletons():
+        if not self.options.skip_far_pairs or self._all_pairs or self._trapezoidal_skeletons():
             return pairs, {}
         near, far = [], {}
         for i, j in pairs:
@@ -588,6 +604,7 @@ class ImplicitContactStepper:
                 own = h * (np.linalg.norm(mi[0]) + np.linalg.norm(mj[0])) + reach
                 if g > h * np.linalg.norm(mi[0] - mj[0]) + reach + own + 10.0 * self.options.contact_tolerance:
                     far[(i, j)] = g
+                    self._left_out = True
                     continue
             near.append((i, j))
         return near, far
