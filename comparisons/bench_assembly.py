@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from implicit_contact import formulation as fm
-from implicit_contact.testing import random_blocks, random_point
+from implicit_contact.testing import random_pair_problem
 from implicit_contact import shapes as shp
 from implicit_contact.params import Friction
 
@@ -55,39 +55,10 @@ CASES = {
 }
 
 
-def _body(fm, kind, dim, rng, col):
-    if kind == "fixed":
-        R = fm.so3_exp(np.array([0.0, 0.0, 0.3])) if dim == 3 else np.eye(3)
-        return fm.BodyKinematics(fm.FIXED, dim, R, np.array([0.1, 0.2, 0.3 if dim == 3 else 0.0]), None, H, None), 0
-    if kind == "free":
-        R, p = fm.so3_exp(rng.normal(size=3)), rng.normal(size=3)
-        return fm.BodyKinematics(fm.FREE, 3, R, p, None, H, np.arange(col, col + 6), 1.0), 6
-    q0 = rng.normal(size=3)
-    c, s = np.cos(q0[2]), np.sin(q0[2])
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return fm.BodyKinematics(fm.PLANAR, 2, R, np.r_[q0[:2], 0.0], q0, H, np.arange(col, col + 3), 1.0), 3
-
-
 def build(fm, case, seed=0):
     """(problem, z) for one case, as in tests/test_formulation.py."""
     dim, kinds, piece1, piece2, fixed2, friction = case
-    rng = np.random.default_rng(seed)
-    bodies, nv, col = [], [], 0
-    for kind in kinds:
-        kin, k = _body(fm, kind, dim, rng, col)
-        bodies.append(kin)
-        if k:
-            nv.append(k)
-            col += k
-    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
-    o2 = fm.ContactObject(1, tuple(piece2.functions), fixed2)
-    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
-    spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05)
-    layout = fm.build_layout(nv, [spec])
-    blocks = random_blocks(bodies, rng)
-    problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = random_point(layout, rng)
-    return problem, z
+    return random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(seed), H, fixed2, fm)
 
 
 def _us_per_call(f, calls, batch=10):

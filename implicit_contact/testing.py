@@ -1,17 +1,53 @@
 """Random step problems for tests and benchmarks (the stepper does not use this module).
 
-A StepProblem needs Newton-Euler blocks for its moving bodies and, to probe its rows, a point z at
-which every row is defined: positive multipliers and normal impulses, a positive slip multiplier
-where friction rows exist, a small deflection where a quasi-rigid layer exists.
+A StepProblem needs body kinematics, Newton-Euler blocks for its moving bodies and, to probe its
+rows, a point z at which every row is defined: positive multipliers and normal impulses, a
+positive slip multiplier where friction rows exist, a small deflection where a quasi-rigid layer
+exists. ``fm`` parameters let comparisons/bench_assembly.py build the same problems with another
+version of formulation.py.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import formulation as fm
+from . import formulation
 
 
-def random_blocks(bodies, rng) -> list:
+def random_body(kind, dim, rng, col, h, fm=formulation):
+    """(BodyKinematics, its number of velocity columns) for kind "fixed", "free" or "planar" with a
+    random pose; a moving body's velocities start at column col."""
+    if kind == "fixed":
+        R = fm.so3_exp(np.array([0.0, 0.0, 0.3])) if dim == 3 else np.eye(3)
+        return fm.BodyKinematics(fm.FIXED, dim, R, np.array([0.1, 0.2, 0.3 if dim == 3 else 0.0]), None, h, None), 0
+    if kind == "free":
+        R, p = fm.so3_exp(rng.normal(size=3)), rng.normal(size=3)
+        return fm.BodyKinematics(fm.FREE, 3, R, p, None, h, np.arange(col, col + 6), 1.0), 6
+    q0 = rng.normal(size=3)
+    c, s = np.cos(q0[2]), np.sin(q0[2])
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return fm.BodyKinematics(fm.PLANAR, 2, R, np.r_[q0[:2], 0.0], q0, h, np.arange(col, col + 3), 1.0), 3
+
+
+def random_pair_problem(dim, kinds, piece1, piece2, friction, rng, h, fixed2=False, fm=formulation, **spec):
+    """(StepProblem, z) of one pair between random bodies of the two kinds; spec: further PairSpec
+    fields (compliance, compliant_side, delta_prev, ...)."""
+    bodies, nv, col = [], [], 0
+    for kind in kinds:
+        kin, k = random_body(kind, dim, rng, col, h, fm)
+        bodies.append(kin)
+        if k:
+            nv.append(k)
+            col += k
+    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
+    o2 = fm.ContactObject(1, tuple(piece2.functions), fixed2)
+    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
+    pair = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05, **spec)
+    layout = fm.build_layout(nv, [pair])
+    problem = fm.StepProblem(h, random_blocks(bodies, rng, fm), bodies, [pair], layout)
+    return problem, random_point(layout, rng)
+
+
+def random_blocks(bodies, rng, fm=formulation) -> list:
     """One SkeletonBlock per moving body: a random SPD mass matrix (eigenvalues >= its size),
     random velocity and force."""
     blocks = []
@@ -38,3 +74,17 @@ def random_point(layout, rng) -> np.ndarray:
     for ss in getattr(layout, "supports", ()):      # (older layouts in bench_assembly --baseline)
         z[ss.sigma] = abs(z[ss.sigma]) + 0.2
     return z
+
+
+def jacobian_error(problem, z, eps=1e-6) -> float:
+    """max |J - J_fd| / max(1, |J_fd|) over all entries, J_fd by central differences of F with
+    step eps (F from _assemble, the path that does not reuse a cached Jacobian evaluation)."""
+    J = problem.jac(z)
+    J = J.toarray() if hasattr(J, "toarray") else np.array(J)
+    n = problem.layout.n
+    J_fd = np.empty_like(J)
+    for i in range(n):
+        e = np.zeros(n)
+        e[i] = eps
+        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * eps)
+    return float(np.max(np.abs(J - J_fd) / np.maximum(1.0, np.abs(J_fd))))

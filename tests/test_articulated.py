@@ -8,7 +8,7 @@ import pytest
 
 import implicit_contact as ic
 from implicit_contact import formulation as fm
-from implicit_contact.testing import random_blocks, random_point
+from implicit_contact.testing import jacobian_error, random_blocks, random_point
 from implicit_contact import shapes as shp
 from implicit_contact.closest import closest_points
 from implicit_contact.params import Friction
@@ -272,10 +272,6 @@ def _problem(kinds, piece1, piece2, friction, rng, generic=False, reduced=(False
     return fm.StepProblem(H, blocks, bodies, [spec], layout), layout
 
 
-def _point(layout, rng):
-    return random_point(layout, rng)
-
-
 ART_CASES = [
     (("articulated", "fixed"), shp.Sphere(0.3, center=[0.1, 0.0, 0.2]), shp.Ellipsoid([0.4, 0.3, 0.2]),
      Friction(0.3, 1.0, 0.8, 0.2)),
@@ -291,15 +287,7 @@ def test_articulated_pair_jacobian_matches_central_differences(case):
     kinds, piece1, piece2, friction = ART_CASES[case]
     rng = np.random.default_rng(10 + case)
     problem, layout = _problem(kinds, piece1, piece2, friction, rng)
-    z = _point(layout, rng)
-    J = problem.jac(z).copy()
-    J_fd = np.empty_like(J)
-    for i in range(layout.n):
-        e = np.zeros(layout.n)
-        e[i] = EPS_FD
-        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * EPS_FD)
-    scale = np.maximum(1.0, np.abs(J_fd))
-    assert np.max(np.abs(J - J_fd) / scale) < 5e-6
+    assert jacobian_error(problem, random_point(layout, rng), EPS_FD) < 5e-6
 
 
 EQUIV_CASES = [
@@ -319,7 +307,7 @@ def test_generic_path_equals_hot_path_for_free_bodies(case):
     fast, layout = _problem(kinds, piece1, piece2, friction, np.random.default_rng(3), reduced=reduced)
     slow, _ = _problem(kinds, piece1, piece2, friction, np.random.default_rng(3), generic=True, reduced=reduced)
     assert type(slow._plans[0]).__name__ == "CompliantPair" and type(fast._plans[0]).__name__ == "_PairPlan"
-    z = _point(layout, np.random.default_rng(4))
+    z = random_point(layout, np.random.default_rng(4))
     np.testing.assert_allclose(slow.fun(z), fast.fun(z), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(slow.jac(z), fast.jac(z), rtol=1e-10, atol=1e-10)
     art, _ = _problem(kinds, piece1, piece2, friction, np.random.default_rng(3), reduced=reduced)

@@ -5,26 +5,13 @@ import numpy as np
 import pytest
 
 from implicit_contact import formulation as fm
-from implicit_contact.testing import random_blocks, random_point
+from implicit_contact.testing import jacobian_error, random_blocks, random_body, random_pair_problem, random_point
 from implicit_contact import shapes as shp
 from implicit_contact.params import Compliance, Friction
 
 H = 0.01
 EPS_FD = 1e-6            # central-difference step
 ATOL_FD = 5e-6           # |J - J_fd|: truncation O(eps^2 |F'''|) + round-off O(1e-16 |F| / eps) on rows / h
-
-
-def _body(kind, dim, rng, col):
-    if kind == "fixed":
-        R = fm.so3_exp(np.array([0.0, 0.0, 0.3])) if dim == 3 else np.eye(3)
-        return fm.BodyKinematics(fm.FIXED, dim, R, np.array([0.1, 0.2, 0.3 if dim == 3 else 0.0]), None, H, None), 0
-    if kind == "free":
-        R, p = fm.so3_exp(rng.normal(size=3)), rng.normal(size=3)
-        return fm.BodyKinematics(fm.FREE, 3, R, p, None, H, np.arange(col, col + 6), 1.0), 6
-    q0 = rng.normal(size=3)
-    c, s = np.cos(q0[2]), np.sin(q0[2])
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return fm.BodyKinematics(fm.PLANAR, 2, R, np.r_[q0[:2], 0.0], q0, H, np.arange(col, col + 3), 1.0), 3
 
 
 CASES = [
@@ -44,31 +31,10 @@ CASES = [
 @pytest.mark.parametrize("case", range(len(CASES)))
 def test_step_jacobian_matches_central_differences(case):
     dim, kinds, piece1, piece2, fixed2, friction = CASES[case]
-    rng = np.random.default_rng(case)
-    bodies, nv, col = [], [], 0
-    for kind in kinds:
-        kin, k = _body(kind, dim, rng, col)
-        bodies.append(kin)
-        if k:
-            nv.append(k)
-            col += k
-    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
-    o2 = fm.ContactObject(1, tuple(piece2.functions), fixed2)
-    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
-    spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05)
-    layout = fm.build_layout(nv, [spec])
-    blocks = random_blocks(bodies, rng)
-    problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = random_point(layout, rng)
-    J = problem.jac(z).copy()
+    problem, z = random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(case), H, fixed2)
+    err = jacobian_error(problem, z, EPS_FD)
     np.testing.assert_array_equal(problem.fun(z), problem._assemble(z, False)[0])
-    J_fd = np.empty_like(J)
-    for i in range(layout.n):
-        e = np.zeros(layout.n)
-        e[i] = EPS_FD
-        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * EPS_FD)
-    scale = np.maximum(1.0, np.abs(J_fd))
-    assert np.max(np.abs(J - J_fd) / scale) <= ATOL_FD
+    assert err <= ATOL_FD
 
 
 def test_layout_builds_only_the_rows_the_pair_needs():
@@ -101,32 +67,10 @@ COMPLIANT_CASES = [
 @pytest.mark.parametrize("case", range(len(COMPLIANT_CASES)))
 def test_quasi_rigid_step_jacobian_matches_central_differences(case):
     dim, kinds, piece1, piece2, side, friction, compliance = COMPLIANT_CASES[case]
-    rng = np.random.default_rng(100 + case)
-    bodies, nv, col = [], [], 0
-    for kind in kinds:
-        kin, k = _body(kind, dim, rng, col)
-        bodies.append(kin)
-        if k:
-            nv.append(k)
-            col += k
-    o1 = fm.ContactObject(0, tuple(piece1.functions), False)
-    o2 = fm.ContactObject(1, tuple(piece2.functions), False)
-    axis = np.array([1.0, 0.0, 0.0]) if dim == 3 else None
-    spec = fm.PairSpec(("a", "b"), o1, o2, dim, friction, friction.active, 0, axis, 0.05,
-                       compliance=compliance, compliant_side=side, delta_prev=0.003)
-    layout = fm.build_layout(nv, [spec])
-    blocks = random_blocks(bodies, rng)
-    problem = fm.StepProblem(H, blocks, bodies, [spec], layout)
-    z = random_point(layout, rng)
-    sl = layout.pairs[0]
-    J = problem.jac(z).copy()
-    J_fd = np.empty_like(J)
-    for i in range(layout.n):
-        e = np.zeros(layout.n)
-        e[i] = EPS_FD
-        J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * EPS_FD)
-    scale = np.maximum(1.0, np.abs(J_fd))
-    assert np.max(np.abs(J - J_fd) / scale) <= ATOL_FD
+    problem, z = random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(100 + case), H,
+                                     compliance=compliance, compliant_side=side, delta_prev=0.003)
+    sl = problem.layout.pairs[0]
+    assert jacobian_error(problem, z, EPS_FD) <= ATOL_FD
     # the layer adds dbar, delta_n and, with a finite core, p_nr
     assert sl.dbar >= 0 and sl.dn >= 0 and (sl.p_nr >= 0) == math.isfinite(compliance.delta_max)
 
@@ -138,9 +82,9 @@ def _many_body_problem(dim, jacobian, seed=7):
     from implicit_contact.support import SupportFriction, SupportSpec
     rng = np.random.default_rng(seed)
     kind = "free" if dim == 3 else "planar"
-    bodies, nv, col = [_body("fixed", dim, rng, 0)[0]], [], 0
+    bodies, nv, col = [random_body("fixed", dim, rng, 0, H)[0]], [], 0
     for _ in range(5):
-        kin, k = _body(kind, dim, rng, col)
+        kin, k = random_body(kind, dim, rng, col, H)
         bodies.append(kin)
         nv.append(k)
         col += k
