@@ -1113,19 +1113,32 @@ def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
     return s1, s2
 
 
-def _flip_seed(problem, x, spec, tol):
-    """Closest points and multipliers (a1, a2, l1, l2) of a pair whose bodies 1 and 2 were just
-    swapped (spec: the new orientation), at the poses the iterate x of ``problem`` implies; sets
-    spec.k1 from them."""
+def _static_seed(problem, x, spec, tol, always=False):
+    """(a1, a2, l1, l2, k1) of pair ``spec`` from the static closest points at the poses the
+    iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
+    fixed half-space: its point below the plane); None if the static solve fails, unless always
+    (then _closest_seed's fallbacks)."""
+    from .closest import closest_points
     P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
     first, second = spec.objects
-    res = _closest_seed(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
+    res = (_closest_seed if always else closest_points)(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
+    if not res.success and not always:
+        return None
     a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
     normal = np.asarray(res.normal, float)
     if res.overlapping or res.distance <= tol:
         a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
+    deepest = _below_plane_seed(spec, P) if res.overlapping else None
+    if deepest is not None:
+        a1, a2, normal = deepest
     l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
-    spec.k1 = k1
+    return a1, a2, l1, l2, k1
+
+
+def _flip_seed(problem, x, spec, tol):
+    """_static_seed of a pair whose bodies 1 and 2 were just swapped (spec: the new orientation):
+    (a1, a2, l1, l2); sets spec.k1 from it."""
+    a1, a2, l1, l2, spec.k1 = _static_seed(problem, x, spec, tol, always=True)
     return a1, a2, l1, l2
 
 
@@ -1342,22 +1355,12 @@ def _reseed(problem, x, tol, adopt_k1=()):
     Newton on the KKT rows of a polytope can stall on a vertex that is no longer the deepest one
     (a box slapping flat turns its contact point over to the far edge within one step); the
     static problem is convex and its solver finds the right vertex, face or deepest point."""
-    from .closest import closest_points
     z = x.copy()
     for k, spec in enumerate(problem.specs):
-        P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
-        first, second = spec.objects
-        res = closest_points(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
-        if not res.success:
+        seed = _static_seed(problem, x, spec, tol)
+        if seed is None:
             continue
-        a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
-        normal = np.asarray(res.normal, float)
-        if res.overlapping or res.distance <= tol:
-            a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
-        deepest = _below_plane_seed(spec, P) if res.overlapping else None
-        if deepest is not None:
-            a1, a2, normal = deepest
-        l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
+        a1, a2, l1, l2, k1 = seed
         if k in adopt_k1:
             spec.k1 = k1         # the caller rebuilds the problem with it
         elif k1 != spec.k1:
