@@ -93,6 +93,8 @@ import numpy as np
 from scipy.optimize import linprog, minimize, nnls
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
+from . import shape_kernels as _sk
+
 __all__ = [
     "MassProperties", "ConvexFunction", "Sphere", "Ellipsoid", "Superquadric", "HalfSpace",
     "InfiniteCylinder", "Disc", "Ellipse", "Superellipse", "HalfPlane", "Intersection", "Union",
@@ -221,15 +223,6 @@ def _plain(value):
     return float(a) if a.ndim == 0 else a.tolist()
 
 
-def _sqnorm(X: np.ndarray):
-    return float(X @ X) if X.ndim == 1 else np.einsum("...i,...i->...", X, X)
-
-
-def _constant(H: np.ndarray, xl: np.ndarray) -> np.ndarray:
-    """A constant Hessian for one point or broadcast over a batch (always a fresh array)."""
-    return H.copy() if xl.ndim == 1 else np.broadcast_to(H, xl.shape[:-1] + H.shape).copy()
-
-
 def _lp_support(D: np.ndarray, p: float) -> np.ndarray:
     """argmax {D.X : ||X||_p <= 1}."""
     ps = _dual(p)
@@ -351,7 +344,7 @@ def _newton_from_right(phi, dphi, tau: float) -> float:
 # primitives with a placement
 # --------------------------------------------------------------------------------------------
 class _Primitive(ConvexFunction):
-    """Placement f(x) = f0(R0^T (x - c0)); subclasses give f0 through _local(xl, order)."""
+    """Placement f(x) = f0(R0^T (x - c0)); subclasses give f0 as a shape_kernels row."""
 
     _DIM: int = 3
 
@@ -393,30 +386,48 @@ class _Primitive(ConvexFunction):
         return x
 
     @abstractmethod
-    def _local(self, xl: np.ndarray, order: int): ...
+    def _kernel_params(self) -> np.ndarray:
+        """This function's row of shape_kernels (its code, placement and parameters)."""
+
+    @property
+    def kernel_params(self) -> np.ndarray:
+        """The shape_kernels row of this function (a copy: the step packs it into its tables)."""
+        par = self.__dict__.get("_par")
+        if par is None:
+            par = self.__dict__["_par"] = self._kernel_params()
+        return par.copy()
+
+    def _eval(self, x, order: int):
+        """Values, gradients and Hessians (body frame) of shape_kernels at the points x."""
+        x = _points(x, self.dim)
+        par = self.__dict__.get("_par")
+        if par is None:
+            self.kernel_params
+            par = self.__dict__["_par"]
+        X = np.ascontiguousarray(x.reshape(-1, self.dim), dtype=float)
+        v, g, H = _sk.evaluate_many(par, X, order)
+        lead = x.shape[:-1]
+        return v.reshape(lead), g.reshape(lead + (self.dim,)), H.reshape(lead + (self.dim, self.dim))
 
     def value(self, x):
-        v, _, _ = self._local(self._to_local(_points(x, self.dim)), 0)
-        return _as_float(v)
+        return _as_float(self._eval(x, 0)[0])
 
     def gradient(self, x):
-        _, g, _ = self._local(self._to_local(_points(x, self.dim)), 1)
-        return g @ self._R0.T if self._rotated else g
+        return self._eval(x, 1)[1]
 
     def hessian(self, x):
-        _, _, H = self._local(self._to_local(_points(x, self.dim)), 2)
-        return self._R0 @ H @ self._R0.T if self._rotated else H
+        return self._eval(x, 2)[2]
 
     def value_gradient(self, x):
-        v, g, _ = self._local(self._to_local(_points(x, self.dim)), 1)
-        return _as_float(v), (g @ self._R0.T if self._rotated else g)
+        v, g, _ = self._eval(x, 1)
+        return _as_float(v), g
 
     def value_gradient_hessian(self, x):
-        v, g, H = self._local(self._to_local(_points(x, self.dim)), 2)
-        if self._rotated:
-            g = g @ self._R0.T
-            H = self._R0 @ H @ self._R0.T
+        v, g, H = self._eval(x, 2)
         return _as_float(v), g, H
+
+    def _placed(self, code, **par) -> np.ndarray:
+        return _sk.pack(code, self.dim, center=self._c0, rotation=self._R0, **par)
 
     def support(self, direction) -> np.ndarray:
         d = _finite_vector(direction, self.dim, "direction")
@@ -462,14 +473,9 @@ class _Ball(_Primitive):
     def __init__(self, radius, center=None, rotation=None):
         super().__init__(center, rotation)
         self.radius = _positive(radius, "radius")
-        self._H_local = np.eye(self.dim) / self.radius
 
-    def _local(self, xl, order):
-        r = self.radius
-        v = (_sqnorm(xl) - r * r) / (2.0 * r)
-        g = xl / r if order >= 1 else None
-        H = _constant(self._H_local, xl) if order >= 2 else None
-        return v, g, H
+    def _kernel_params(self):
+        return self._placed(_sk.BALL, radius=self.radius)
 
     def aabb(self, rotation, translation):
         _, c = self._world_placement(rotation, translation)
@@ -539,15 +545,9 @@ class _EllipsoidBase(_Primitive):
         super().__init__(center, rotation)
         self.semi_axes = _positive_vector(semi_axes, self.dim, "semi_axes")
         self._s = float(np.prod(self.semi_axes) ** (1.0 / self.dim))
-        self._H_local = np.diag(self._s / self.semi_axes ** 2)
 
-    def _local(self, xl, order):
-        a, s = self.semi_axes, self._s
-        X = xl / a
-        v = 0.5 * s * (_sqnorm(X) - 1.0)
-        g = s * X / a if order >= 1 else None
-        H = _constant(self._H_local, xl) if order >= 2 else None
-        return v, g, H
+    def _kernel_params(self):
+        return self._placed(_sk.ELLIPSOID, semi_axes=self.semi_axes, scale=self._s)
 
     def aabb(self, rotation, translation):
         M, c = self._world_placement(rotation, translation)
@@ -626,45 +626,9 @@ class _PowerSumBase(_Primitive):
         self._n1, self._n2 = n1, n2
         self._single = n1 == n2
 
-    def _local(self, xl, order):
-        a, s, q, p = self.semi_axes, self._s, self._n1, self._n2
-        X = xl / a
-        A = np.abs(X)
-        sg = np.sign(X)
-        if self._single:
-            v = np.sum(A ** q, axis=-1)
-            dg = q * A ** (q - 1.0) * sg if order >= 1 else None
-            d2 = q * (q - 1.0) * A ** (q - 2.0) if order >= 2 else None
-            H = (d2[..., :, None] * np.eye(self.dim)) if order >= 2 else None
-        else:
-            # Barr's form; w is the n2-norm of (X, Y), rho = |X|/w in [0, 1].
-            u = A[..., 0] ** p + A[..., 1] ** p
-            w = u ** (1.0 / p)
-            safe = np.where(w > 0.0, w, 1.0)
-            rx = np.where(w > 0.0, A[..., 0] / safe, 0.0)
-            ry = np.where(w > 0.0, A[..., 1] / safe, 0.0)
-            az = A[..., 2]
-            v = w ** q + az ** q
-            dg = H = None
-            if order >= 1:
-                wq1 = w ** (q - 1.0)
-                dg = np.stack([q * wq1 * rx ** (p - 1.0) * sg[..., 0],
-                               q * wq1 * ry ** (p - 1.0) * sg[..., 1],
-                               q * az ** (q - 1.0) * sg[..., 2]], axis=-1)
-            if order >= 2:
-                wq2 = w ** (q - 2.0)
-                hxx = q * wq2 * ((q - p) * rx ** (2.0 * p - 2.0) + (p - 1.0) * rx ** (p - 2.0))
-                hyy = q * wq2 * ((q - p) * ry ** (2.0 * p - 2.0) + (p - 1.0) * ry ** (p - 2.0))
-                hxy = q * (q - p) * wq2 * rx ** (p - 1.0) * ry ** (p - 1.0) * sg[..., 0] * sg[..., 1]
-                hzz = q * (q - 1.0) * az ** (q - 2.0)
-                H = np.zeros(xl.shape + (3,))
-                H[..., 0, 0], H[..., 1, 1], H[..., 2, 2] = hxx, hyy, hzz
-                H[..., 0, 1] = H[..., 1, 0] = hxy
-        k = s / q
-        val = k * (v - 1.0)
-        g = k * dg / a if order >= 1 else None
-        Hs = k * H / np.outer(a, a) if order >= 2 else None
-        return val, g, Hs
+    def _kernel_params(self):
+        code = _sk.POWER if self._single else _sk.BARR
+        return self._placed(code, semi_axes=self.semi_axes, n1=self._n1, n2=self._n2, scale=self._s)
 
     def _support(self, dirs: np.ndarray) -> np.ndarray:
         """Support h(u) of the unit ball of g along each row u (scaled coordinates)."""
@@ -706,8 +670,12 @@ class _PowerSumBase(_Primitive):
         P, U = o / self.semi_axes, u / self.semi_axes
         q = self._n1
 
+        def local_value(xl, order):
+            x = self._c0 + (self._R0 @ xl if self._rotated else xl)
+            return self._eval(x, order)
+
         def g(X):
-            return float(self._local(X * self.semi_axes, 0)[0]) * q / self._s + 1.0
+            return float(local_value(X * self.semi_axes, 0)[0]) * q / self._s + 1.0
 
         if not np.any(P):
             # g is homogeneous of degree n1 about the centre: g(tau U) = tau^n1 g(U).
@@ -718,7 +686,8 @@ class _PowerSumBase(_Primitive):
         tau = (float(np.linalg.norm(P)) + math.sqrt(self.dim)) / float(np.linalg.norm(U))
 
         def dphi(t):
-            return float(self._local((P + t * U) * self.semi_axes, 1)[1] @ (U * self.semi_axes))
+            grad = local_value((P + t * U) * self.semi_axes, 1)[1]
+            return float((grad @ self._R0 if self._rotated else grad) @ (U * self.semi_axes))
 
         return _newton_from_right(lambda t: g(P + t * U) - 1.0, lambda t: dphi(t) * q / self._s, tau)
 
@@ -817,11 +786,9 @@ class _HalfSpaceBase(_Primitive):
         n = self._R0 @ self.normal
         return n, float(self.offset + n @ self._c0)
 
-    def _local(self, xl, order):
-        v = xl @ self.normal - self.offset
-        g = (self.normal.copy() if xl.ndim == 1 else np.broadcast_to(self.normal, xl.shape).copy()) if order >= 1 else None
-        H = _constant(np.zeros((self.dim, self.dim)), xl) if order >= 2 else None
-        return v, g, H
+    def _kernel_params(self):
+        n, d = self.plane()
+        return _sk.pack(_sk.PLANE, self.dim, normal=n, offset=d)
 
     def aabb(self, rotation, translation):
         R, t = _check_pose(rotation, translation, self.dim)
@@ -896,15 +863,8 @@ class InfiniteCylinder(_Primitive):
         """Unit axis direction in the body frame."""
         return self._R0[:, 2].copy()
 
-    def _local(self, xl, order):
-        r = self.radius
-        v = (xl[..., 0] ** 2 + xl[..., 1] ** 2 - r * r) / (2.0 * r)
-        g = None
-        if order >= 1:
-            g = xl / r
-            g[..., 2] = 0.0
-        H = _constant(np.diag([1.0 / r, 1.0 / r, 0.0]), xl) if order >= 2 else None
-        return v, g, H
+    def _kernel_params(self):
+        return self._placed(_sk.CYLINDER, radius=self.radius)
 
     def aabb(self, rotation, translation):
         M, c = self._world_placement(rotation, translation)

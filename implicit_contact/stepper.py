@@ -563,9 +563,8 @@ class ImplicitContactStepper:
             adapter.write_velocities_and_integrate(rec, v_solved[s], states[s].v, h, midpoint=s in midpoint)
         self._last = new_last
         self._far = far_next
-        self._last_support = {sp.key: (z[ss.y].copy(), float(z[ss.sigma]), plan.wrench(z))
-                              for sp, ss, plan in zip(problem.supports, layout.supports,
-                                                      problem._plans[len(specs):])}
+        self._last_support = {sp.key: (z[ss.y].copy(), float(z[ss.sigma]), problem.support_wrench(z, s))
+                              for s, (sp, ss) in enumerate(zip(problem.supports, layout.supports))}
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, layout.n)
 
@@ -801,9 +800,8 @@ class ImplicitContactStepper:
         o1 = fm.ContactObject(body_pos[first.body], first.funcs, red1, first.label)
         o2 = fm.ContactObject(body_pos[second.body], second.funcs, red2, second.label)
         delta_prev = last["deflection"] if last is not None else 0.0
-        generic = adapter.ARTICULATED in (b1.kind, b2.kind)
         return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
-                           compliance, side, delta_prev, generic=generic)
+                           compliance, side, delta_prev)
 
     def _orient_intersections(self, oi, oj, flip=False):
         """Which of two intersections is body 1 ([GI] eqs 28-32): the side whose closest point
@@ -1060,8 +1058,8 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
 
     hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
     l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1; touching points use the normal instead of a1 - a2."""
-    _, G1, *_ = fm._eval_functions(spec.obj1.functions, P1, a1)
-    _, G2, *_ = fm._eval_functions(spec.obj2.functions, P2, a2)
+    _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
+    _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
     d = a2 - a1
     m1 = len(G1)
     if np.linalg.norm(d) > 1e-12:
@@ -1280,8 +1278,8 @@ def _central_touch_point(spec, P1, P2, a, normal, tol):
         centres.append(0.5 * (centres[0] + centres[1]))
     for c in centres:
         x = c - ((c - a) @ normal) * normal
-        f1, *_ = fm._eval_functions(spec.obj1.functions, P1, x, jac=False)
-        f2, *_ = fm._eval_functions(spec.obj2.functions, P2, x, jac=False)
+        f1, _ = fm.eval_functions(spec.obj1.functions, P1, x)
+        f2, _ = fm.eval_functions(spec.obj2.functions, P2, x)
         if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
             return x
     return a
@@ -1313,8 +1311,8 @@ def _inactive_k1(problem, x, tol) -> list:
             continue
         b1 = spec.obj1.body
         a1 = problem.points(x, k)[0]
-        f, *_ = fm._eval_functions((spec.obj1.functions[spec.k1],),
-                                   problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1, jac=False)
+        f, _ = fm.eval_functions((spec.obj1.functions[spec.k1],),
+                                 problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1)
         if f[0] < -tol:
             out.append(k)
     return out

@@ -26,8 +26,9 @@ y inside the ball; sliding: |y| = 1 and y opposes (u, e_r omega). The body's New
 receive the generalized impulse mu P (y_x, y_y, e_r y_3 + r x (y_x, y_y)).
 
 Rows are in velocity units (the Newton-Euler rows are scaled by the problem), sigma's row is
-unit-free. tests/test_support.py checks the Jacobian by differences and the motion against
-closed forms (deceleration mu g, spin-down mu N e_r / I, static hold below mu N).
+unit-free; their kernel is rows/support.py. tests/test_support.py checks the Jacobian by
+differences and the motion against closed forms (deceleration mu g, spin-down mu N e_r / I,
+static hold below mu N).
 """
 from __future__ import annotations
 
@@ -102,57 +103,3 @@ def allocate(col: int, supports: list, lower: list, upper: list):
         upper += [math.inf] * (ny + 1)
         col += ny + 1
     return slots, col
-
-
-class SupportPlan:
-    """The rows of one support block of a StepProblem, with the generator interface of the pairs:
-    next() writes its rows into F and yields None (no pair report); send(J) writes its Jacobian."""
-
-    def __init__(self, problem, spec: SupportSpec, sl: SupportSlots):
-        kin = problem.bodies[spec.body]
-        if kin.kind != "planar" or kin.vindex is None:
-            raise ValueError("support friction needs a moving planar body")
-        fr = spec.friction
-        self.sl, self.vs = sl, problem._vslice[spec.body]
-        R = np.asarray(kin.R0, float)[:2, :2]
-        r = R @ np.asarray(fr.centre, float)
-        self.e_r = fr.e_r
-        # velocity of c and e_r omega: E v with E = [[1, 0, -r_y], [0, 1, r_x], [0, 0, e_r]]
-        E = np.array([[1.0, 0.0, -r[1]], [0.0, 1.0, r[0]], [0.0, 0.0, fr.e_r]])
-        self.E = E if fr.torsion else E[:2]
-        self.scale = fr.mu * fr.normal_force * problem.h     # mu P
-        self.impulse = self.scale * self.E.T                 # generalized impulse = impulse @ y
-
-    @property
-    def local_index(self) -> np.ndarray:
-        """Indices of z (sorted) of every row and column its Jacobian writes: the body's
-        velocities and its own block (the plan protocol of formulation.StepProblem)."""
-        rows = self.sl.rows
-        return np.concatenate([np.arange(self.vs.start, self.vs.stop), np.arange(rows.start, rows.stop)])
-
-    def generator(self, z, F):
-        self._rows(z, F)
-        J = yield None
-        if J is not None:
-            self._jacobian(z, J)
-        yield
-
-    def _rows(self, z, F):
-        sl, vs = self.sl, self.vs
-        y, sigma = z[sl.y], z[sl.sigma]
-        F[vs] -= self.impulse @ y
-        F[sl.y] = self.E @ z[vs] + sigma * y
-        F[sl.sigma] = 1.0 - y @ y
-
-    def _jacobian(self, z, J):
-        sl, vs = self.sl, self.vs
-        y, sigma = z[sl.y], z[sl.sigma]
-        J[vs, sl.y] -= self.impulse
-        J[sl.y, vs] += self.E
-        J[sl.y, sl.y] += sigma * np.eye(len(y))
-        J[sl.y, sl.sigma] += y
-        J[sl.sigma, sl.y] += -2.0 * y
-
-    def wrench(self, z) -> np.ndarray:
-        """(p_x, p_y, tau about the body origin) of the step's friction impulse [N s, N m s]."""
-        return self.impulse @ z[self.sl.y]

@@ -77,8 +77,8 @@ def test_quasi_rigid_step_jacobian_matches_central_differences(case):
 
 def _many_body_problem(dim, jacobian, seed=7):
     """A fixed ground (body 0) and five moving bodies: each on the ground, a chain of body / body
-    pairs sharing bodies, one quasi-rigid and one generic rigid pair (the generic plan protocol);
-    in 2D one body also has support friction (support.SupportPlan, the same protocol)."""
+    pairs sharing bodies, one quasi-rigid pair and one more rigid pair; in 2D one body also has
+    support friction (rows/support.py)."""
     from implicit_contact.support import SupportFriction, SupportSpec
     rng = np.random.default_rng(seed)
     kind = "free" if dim == 3 else "planar"
@@ -105,7 +105,7 @@ def _many_body_problem(dim, jacobian, seed=7):
         specs.append(fm.PairSpec((b, b + 1), obj[b - 1], obj[b], dim, fr, True, 0, axis, 0.05))
     specs.append(fm.PairSpec((4, 5), obj[3], obj[4], dim, fr, True, 0, axis, 0.05,
                              compliance=Compliance(1e3, 1.0, 0.02), compliant_side=2, delta_prev=0.003))
-    specs.append(fm.PairSpec((1, 5), obj[0], obj[4], dim, fr, True, 0, axis, 0.05, generic=True))
+    specs.append(fm.PairSpec((1, 5), obj[0], obj[4], dim, fr, True, 0, axis, 0.05))
     supports = (SupportSpec(2, SupportFriction(0.3, 5.0, (0.1, 0.0), 0.2)),) if dim == 2 else ()
     layout = fm.build_layout(nv, specs, supports)
     blocks = random_blocks(bodies, rng)
@@ -116,8 +116,8 @@ def _many_body_problem(dim, jacobian, seed=7):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
-    """The sparse path (per-plan blocks over local columns, generic plans through _LocalJacobian)
-    gives the dense path's J, and the same F bitwise from fun and from jac."""
+    """The sparse path (per-plan blocks over local columns through a fixed CSR pattern) gives the
+    dense path's J, and the same F bitwise from fun and from jac."""
     import scipy.sparse as sp
     dense, z = _many_body_problem(dim, "dense")
     sparse, _ = _many_body_problem(dim, "sparse")
@@ -136,18 +136,3 @@ def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
     rs = ncp.solve_mcp(sparse.fun, sparse.jac, z, sparse.lower, sparse.upper, opts)
     assert rd.steps == rs.steps
     np.testing.assert_allclose(rs.x, rd.x, rtol=1e-9, atol=1e-9)
-
-
-def test_local_jacobian_translates_indices_and_refuses_foreign_ones():
-    index = np.array([3, 4, 5, 10, 11, 20])
-    block = fm._LocalJacobian(np.zeros((6, 6)), index)
-    block[slice(3, 6), 10] = [1.0, 2.0, 3.0]
-    block[np.array([20, 4]), slice(10, 12)] += np.ones((2, 2))
-    block[11, 3] -= 5.0
-    J = np.zeros((21, 21))
-    J[np.ix_(index, index)] = block.array
-    assert J[5, 10] == 3.0 and J[20, 11] == 1.0 and J[4, 10] == 3.0 and J[11, 3] == -5.0
-    assert J.sum() == 1.0 + 2.0 + 3.0 + 4.0 - 5.0
-    for bad in ((6, 3), (3, slice(4, 11)), (np.array([3, 7]), 3)):
-        with pytest.raises(IndexError):
-            block[bad] = 1.0

@@ -1,0 +1,99 @@
+"""How the compiled kernels are compiled: numba, cached per machine, plain Python on request.
+
+Every kernel of the package is a plain Python function over numpy arrays and floats, decorated
+with ``kernel`` (numba's ``njit`` with the options below). With the environment variable
+``NUMBA_DISABLE_JIT=1`` numba leaves the functions as they are, so every kernel runs, slowly, as
+ordinary Python that a debugger can step through; the results are the same up to round-off.
+
+Options, and why:
+* ``cache=True``: a machine compiles once; the machine code is written next to each module
+  (``__pycache__/*.nbi, *.nbc``) and loaded by later processes in milliseconds.
+* ``error_model="numpy"``: a division by zero gives inf or NaN instead of raising
+  ZeroDivisionError inside a step; the solver reports a non-finite row (status NOT_FINITE) and
+  the stepper treats it as a failed solve, so no arithmetic error escapes mid-step.
+* no ``fastmath``: NaN and inf must propagate as IEEE says (the solver tests for them) and
+  results must not depend on reassociation.
+
+Cache validity. numba keys a cached kernel to the modification time of the file that defines
+it, not to the files of the kernels it calls, so editing one kernel module would leave the
+cached callers of its kernels stale. ``_invalidate_stale_cache`` below runs once, before any
+kernel module is imported: it hashes the source of every kernel module and, if the hash differs
+from the one stored with the cache, deletes the package's cached kernels so that they are
+compiled afresh. An installed release never meets this (installing rewrites every file), a
+development checkout does.
+"""
+from __future__ import annotations
+
+import glob
+import hashlib
+import os
+
+import numba
+
+# The modules that define kernels (paths relative to the package). Keep this list complete:
+# a kernel module missing here could be served from a stale cache after an edit.
+KERNEL_MODULES = ("_jit.py", "shape_kernels.py", "rows/__init__.py", "rows/bodies.py", "rows/contact.py",
+                  "rows/dynamics.py", "rows/support.py", "rows/assemble.py", "mcp_core.py", "linalg.py",
+                  "step_kernels.py")
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__))
+_STAMP = "implicit_contact_kernels.sha256"
+
+
+def _source_hash() -> str:
+    digest = hashlib.sha256(numba.__version__.encode())
+    for rel in KERNEL_MODULES:
+        path = os.path.join(_PACKAGE, rel)
+        if os.path.exists(path):
+            with open(path, "rb") as fh:
+                digest.update(rel.encode() + b"\0" + fh.read())
+    return digest.hexdigest()
+
+
+def _cache_files(folder: str) -> list:
+    """This package's cached kernels in one cache folder (NUMBA_CACHE_DIR mirrors source paths)."""
+    found = glob.glob(os.path.join(folder, "**", "*.nb[ic]"), recursive=True)
+    return [p for p in found if "implicit_contact" in p or folder.startswith(_PACKAGE)]
+
+
+def _cache_dirs() -> list:
+    """Where numba writes this package's kernel caches: NUMBA_CACHE_DIR if set, else the
+    __pycache__ folders beside the modules."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    if root:
+        return [root]
+    return [os.path.join(_PACKAGE, "__pycache__"), os.path.join(_PACKAGE, "rows", "__pycache__")]
+
+
+def _invalidate_stale_cache() -> None:
+    if os.environ.get("NUMBA_DISABLE_JIT", "0") not in ("", "0"):
+        return
+    want = _source_hash()
+    for folder in _cache_dirs():
+        stamp = os.path.join(folder, _STAMP)
+        try:
+            with open(stamp) as fh:
+                if fh.read().strip() == want:
+                    continue
+        except OSError:
+            pass
+        try:
+            os.makedirs(folder, exist_ok=True)
+            for path in _cache_files(folder):
+                os.remove(path)
+            with open(stamp, "w") as fh:
+                fh.write(want)
+        except OSError:
+            # a read-only install: numba falls back to its user-wide cache, keyed the same way
+            pass
+
+
+_invalidate_stale_cache()
+
+
+def kernel(fn):
+    """A compiled kernel (see the module docstring)."""
+    return numba.njit(cache=True, error_model="numpy", nogil=True)(fn)
+
+
+JIT_DISABLED = bool(numba.config.DISABLE_JIT)

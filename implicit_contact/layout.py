@@ -1,0 +1,255 @@
+"""The unknowns of one step and their index maps: what a step's MCP is made of.
+
+A step's unknown vector z holds, in this order: every involved skeleton's velocities, then per
+candidate pair its block (a1, a2, multipliers, p_n, friction, quasi-rigid unknowns), then per
+support block its friction unknowns; rows share the indices of the unknowns they pair with.
+``build_layout`` allocates z from the pairs' static descriptions (PairSpec); the Layout packs
+and unpacks it, so no other code does index arithmetic by hand. Only the rows a pair needs are
+allocated: no friction rows at mu = 0 or while a gap is open (``with_friction``), no torsion at
+e_r = 0, a coordinate of a point on a fixed half-space dropped, quasi-rigid unknowns only for
+quasi-rigid pairs ([GI] Sec. 4.2 counts 11 unknowns for Example 1, 32 for Example 2).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+import math
+import weakref
+
+import numpy as np
+
+from .params import Friction
+from .support import allocate as allocate_supports
+
+FREE, PLANAR, FIXED = "free", "planar", "fixed"
+ARTICULATED = "articulated"   # a body of a multi-body skeleton (or any other root): see BodyKinematics
+
+
+@dataclass
+class ContactObject:
+    """One convex piece (a single function or an intersection) of one body."""
+    body: int                  # index into the step's body list
+    functions: tuple
+    fixed_halfspace: bool      # a fixed body whose piece is one half-space / half-plane
+    label: str = ""
+
+
+@dataclass
+class PairSpec:
+    """The static description of a candidate pair, as the layout needs it."""
+    key: tuple
+    obj1: ContactObject
+    obj2: ContactObject
+    dim: int
+    friction: Friction
+    with_friction: bool
+    k1: int = 0
+    tangent_axis: np.ndarray | None = None
+    impulse_scale: float = 1.0
+    objects: tuple = ()        # the stepper's own records of the two pieces, for reports
+    compliance: object = None  # an ic.Compliance: a quasi-rigid pair (rows/contact.py, [GI] Sec. 5)
+    compliant_side: int = 2    # which body carries the deformed layer
+    delta_prev: float = 0.0    # its normal deflection at l
+
+
+@dataclass
+class PairSlots:
+    """Column indices of one pair's unknowns and row indices of its rows in z / F."""
+    a1: np.ndarray
+    a2: np.ndarray
+    l1: np.ndarray
+    l2: np.ndarray
+    p_n: int
+    p_t: np.ndarray            # (d-1,) friction unknowns, empty if no friction
+    p_r: int                   # -1 if no torsion
+    sigma: int                 # -1 if no friction
+    rows_geo: np.ndarray       # 2d rows: (15) then (16)
+    rows_l1: np.ndarray        # complementarity rows of bounded l1 (aligned with l1 unknowns)
+    rows_l2: np.ndarray
+    row_n: int
+    rows_fric: np.ndarray      # (d-1) + torsion rows, then sigma row = sigma
+    dbar: int = -1             # quasi-rigid pairs: algebraic offset, deflection, core impulse
+    dn: int = -1               # (each row shares its unknown's index: (35), spring, core)
+    p_nr: int = -1
+
+    def __post_init__(self):
+        # the same blocks as slices (every block is contiguous), for fast reads and writes
+        self.a1s, self.a2s = _as_slice(self.a1), _as_slice(self.a2)
+        self.l1s, self.l2s, self.p_ts = _as_slice(self.l1), _as_slice(self.l2), _as_slice(self.p_t)
+        self.rows_l1s, self.rows_l2s = _as_slice(self.rows_l1), _as_slice(self.rows_l2)
+        self.l1_bounded = np.arange(len(self.rows_l1))   # which functions have complementarity rows
+        self.l2_bounded = np.arange(len(self.rows_l2))
+
+
+@dataclass
+class Layout:
+    """Packs and unpacks the unknown vector z of one step; no other code does index arithmetic."""
+    n: int
+    v_index: list              # per skeleton: column indices of its velocities
+    pairs: list                # PairSlots per pair
+    lower: np.ndarray
+    upper: np.ndarray
+    supports: tuple = ()       # support.SupportSlots per support block (after all pairs)
+
+
+def _position_rows(layout: Layout):
+    """The position-level rows (15), (17)-(19) of all pairs (scaled by 1/h), kept with the layout."""
+    rows = layout.__dict__.get("_position_rows")
+    if rows is None:
+        parts = [np.zeros(0, int)]
+        for sl in layout.pairs:
+            parts += [sl.rows_geo[: len(sl.rows_geo) // 2], sl.rows_l1, sl.rows_l2, [sl.row_n]]
+            parts += [[r] for r in (sl.dbar, sl.p_nr) if r >= 0]     # (35) and the core: lengths
+        rows = layout.__dict__["_position_rows"] = np.concatenate(parts).astype(int)
+    return rows
+
+
+_REDUCED_CACHE = weakref.WeakKeyDictionary()
+
+
+def _reduced_point(obj: ContactObject, kin: "BodyKinematics"):
+    """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents), world frame.
+    Cached per plane function and body pose (the ground is the same every step)."""
+    fn = obj.functions[0]
+    key = (kin.dim, np.asarray(kin.R0, float).tobytes(), np.asarray(kin.p0, float).tobytes())
+    try:
+        per_fn = _REDUCED_CACHE.setdefault(fn, {})
+    except TypeError:            # not weak-referenceable
+        return _reduced_point_uncached(obj, kin)
+    hit = per_fn.get(key)
+    if hit is None:
+        if len(per_fn) > 16:
+            per_fn.clear()
+        hit = per_fn[key] = _reduced_point_uncached(obj, kin)
+    return hit
+
+
+def _reduced_point_uncached(obj: ContactObject, kin: "BodyKinematics"):
+    dim = kin.dim
+    n_b, offset = obj.functions[0].plane()            # body frame
+    R, p = kin.R0[:dim, :dim], kin.p0[:dim]
+    n = R @ np.asarray(n_b, float)
+    a0 = (float(offset) + float(n @ p)) * n
+    if dim == 2:
+        T = np.array([[-n[1]], [n[0]]])
+    else:
+        T = _tangent_basis(n, _least_aligned_axis(n))[1:].T
+    return a0, T
+
+
+def _least_aligned_axis(n):
+    e = np.zeros(len(n))
+    e[int(np.argmin(np.abs(n)))] = 1.0
+    return e
+
+
+def _tangent_basis(n, e):
+    u = e - (e @ n) * n
+    t = u / np.linalg.norm(u)
+    return np.array([n, t, np.cross(n, t)])
+
+
+def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = ()) -> Layout:
+    """Allocate z: velocities first, then each pair's unknowns, then the support blocks'
+    (support.SupportSpec); rows follow the same order."""
+    lower, upper = [], []
+    col = 0
+    v_index = []
+    for nv in nv_per_skeleton:
+        v_index.append(np.arange(col, col + nv))
+        lower += [-np.inf] * nv
+        upper += [np.inf] * nv
+        col += nv
+    slots = []
+    for spec in specs:
+        d = spec.dim
+        n1, n2 = len(spec.obj1.functions), len(spec.obj2.functions)
+        red1, red2 = spec.obj1.fixed_halfspace, spec.obj2.fixed_halfspace
+        na1 = d - 1 if red1 else d
+        na2 = d - 1 if red2 else d
+        base = col
+        a1 = np.arange(col, col + na1); col += na1
+        a2 = np.arange(col, col + na2); col += na2
+        # multipliers made free by a reduced side come next, so that the 2d geometric rows
+        # pair with exactly the free unknowns a1, a2 and those multipliers.
+        free_l1 = red1
+        free_l2 = red2
+        geo_free = na1 + na2 + int(free_l1) + int(free_l2)
+        if geo_free != 2 * d:
+            raise AssertionError("geometric rows and free unknowns do not balance")
+        l1 = np.arange(col, col + n1) if free_l1 else None
+        if free_l1:
+            col += n1
+        l2 = np.arange(col, col + n2) if free_l2 else None
+        if free_l2:
+            col += n2
+        rows_geo = np.arange(base, base + 2 * d)
+        lower += [-np.inf] * geo_free
+        upper += [np.inf] * geo_free
+        rows_l1 = np.arange(0)
+        rows_l2 = np.arange(0)
+        if not free_l1:
+            l1 = np.arange(col, col + n1); rows_l1 = l1.copy(); col += n1
+            lower += [0.0] * n1; upper += [np.inf] * n1
+        if not free_l2:
+            l2 = np.arange(col, col + n2); rows_l2 = l2.copy(); col += n2
+            lower += [0.0] * n2; upper += [np.inf] * n2
+        p_n = col; col += 1
+        lower.append(0.0); upper.append(np.inf)
+        p_t = np.arange(0)
+        p_r = sigma = -1
+        rows_fric = np.arange(0)
+        if spec.with_friction:
+            p_t = np.arange(col, col + d - 1); col += d - 1
+            lower += [-np.inf] * (d - 1); upper += [np.inf] * (d - 1)
+            if d == 3 and spec.friction.torsion:
+                p_r = col; col += 1
+                lower.append(-np.inf); upper.append(np.inf)
+            sigma = col; col += 1
+            lower.append(0.0); upper.append(np.inf)
+            rows_fric = np.arange(p_t[0], col)
+        dbar = dn = p_nr = -1
+        if spec.compliance is not None:
+            dbar, dn = col, col + 1
+            col += 2
+            lower += [-np.inf, -np.inf]; upper += [np.inf, np.inf]
+            if math.isfinite(spec.compliance.delta_max):
+                p_nr = col; col += 1
+                lower.append(0.0); upper.append(np.inf)
+        slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
+                               p_n, rows_fric, dbar, dn, p_nr))
+    support_slots, col = allocate_supports(col, supports, lower, upper)
+    return Layout(col, v_index, slots, np.array(lower), np.array(upper), tuple(support_slots))
+
+
+@dataclass
+class SkeletonBlock:
+    """Newton-Euler data of one skeleton at l: M v+ = M v + h force + sum J^T P."""
+    M: np.ndarray
+    v: np.ndarray
+    force: np.ndarray
+    body: int                  # its contact body in StepProblem.bodies
+
+
+@dataclass
+class PairState:
+    """A pair's unknowns unpacked (impulses in physical units)."""
+    a1: np.ndarray
+    a2: np.ndarray
+    l1: np.ndarray
+    l2: np.ndarray
+    p_n: float
+    p_t: np.ndarray
+    p_r: float
+    sigma: float
+    normal: np.ndarray
+    tangents: np.ndarray
+    gap: float
+
+
+def _as_slice(index):
+    """A contiguous index array as a slice (layouts only allocate contiguous blocks)."""
+    if len(index) == 0:
+        return slice(0, 0)
+    return slice(int(index[0]), int(index[-1]) + 1)
+
+
