@@ -128,7 +128,8 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.linalg import lapack
+
+from ._jit import kernel
 
 __all__ = ["solve_mcp", "SolverOptions", "McpResult", "Status"]
 
@@ -243,153 +244,488 @@ class McpResult:
         return self.status is Status.CONVERGED
 
 
-class _NotFinite(Exception):
-    """Internal: fun or jac produced NaN / inf at a point; carries a sentence for the result."""
-
-
 # Stand-in for an infinite bound inside phi: phi_lam(BIG - x, b) = b to within two roundings for
 # |b| << BIG with lam = 1, w = 0 on that level, so a missing bound needs no branch and no inf - inf;
 # products with BIG stay finite for |b| < 1e150.
-_BIG = 1e150
+BIG = 1e150
 
 
-def _fb(a, b, lam, w):
-    """phi_lam(a, b) for a >= 0 without cancellation.
+# ---------------------------------------------------------------------------------------------
+# The iteration, once, as a compiled generator that asks its caller for what it needs
+# ---------------------------------------------------------------------------------------------
+# Reverse communication. ``mcp_iterations`` is the whole algorithm above (reformulation,
+# generalized Jacobian, Newton / Levenberg-Marquardt / projected gradient, nonmonotone line
+# search, statuses) as a numba generator over preallocated buffers. It never sees F or J: it
+# yields a request and the caller answers it in the buffers before asking for the next one.
+# solve_mcp below answers with Python callables (dense J through the kernels below, sparse J
+# through scipy); step_solver.py answers a step's MCP inside compiled code, with no Python
+# between iterations. One algorithm, several drivers.
+REQ_F = 1          # Ft = F(xt)
+REQ_J = 2          # J = F'(x); set info[I_BAD] = 1 if J has NaN / inf
+REQ_JZ = 3         # Jz = J @ zk
+REQ_NEWTON = 4     # H = diag(da) + diag(db) J; g = H^T Phi; d = solve(H, -Phi), info[I_SINGULAR]
+REQ_LM = 5         # d = solve(H^T H + (mu + 16 eps max diag(H^T H)) I, -g), mu = fbuf[F_MU]
+REQ_HG = 6         # fbuf[F_HGSQ] = |H g|^2
 
-    lam, w: per-row weights of the FB and penalty terms (w = 1 - lam on a bounded level,
-    lam = 1, w = 0 on an absent one); w is None when no row is penalised.
-    Returns (phi, (a, b, r, max(b, 0), w a)), the second item for `_fb_partials`."""
-    r = np.hypot(a, b)
+# info (int64) entries: outcome and flags
+I_STATUS, I_ITER, I_NFEV, I_NJEV, I_WHY, I_SINGULAR, I_BAD = 0, 1, 2, 3, 4, 5, 6
+NINFO = 7
+# fbuf (float64) entries
+F_RESIDUAL, F_MU, F_HGSQ, F_PSI = 0, 1, 2, 3
+NFBUF = 4
+# options (float64) entries
+(O_TOL, O_MAXIT, O_ARMIJO, O_MEMORY, O_MIN_NEWTON, O_MIN_STEP, O_RHO, O_POWER, O_LM, O_LAMBDA) = range(10)
+NOPT = 10
+# status codes (Status below) and why a NOT_FINITE / failed stop happened
+S_CONVERGED, S_MAX_ITERATIONS, S_LINE_SEARCH_FAILED, S_SINGULAR, S_NOT_FINITE = 0, 1, 2, 3, 4
+WHY_START, WHY_TRIAL, WHY_JAC = 1, 2, 3
+STEP_NEWTON, STEP_LM, STEP_GRADIENT = 1, 2, 3
+
+
+def options_array(options: SolverOptions) -> np.ndarray:
+    o = np.zeros(NOPT)
+    o[O_TOL], o[O_MAXIT], o[O_ARMIJO] = options.tol, options.max_iterations, options.armijo
+    o[O_MEMORY], o[O_MIN_NEWTON], o[O_MIN_STEP] = options.nonmonotone_memory, options.min_newton_step, options.min_step
+    o[O_RHO], o[O_POWER], o[O_LM], o[O_LAMBDA] = (options.descent_rho, options.descent_power, options.lm_factor,
+                                                  options.fb_lambda)
+    return o
+
+
+@kernel
+def _phi(a, b, lam, w):
+    """phi_lam(a, b) for a >= 0 without cancellation (w = 1 - lam on a bounded level, 0 on an
+    absent one)."""
+    r = math.hypot(a, b)
     s = a + b
-    out = s - r
-    np.divide(2.0 * a * b, s + r, out=out, where=s > 0.0)
-    if w is None:
-        return out, (a, b, r, None, None)
-    bp = np.maximum(b, 0.0)
-    wa = w * a          # a >= 0 inside the box, so a+ = a
-    out *= lam
-    out += wa * bp
-    return out, (a, b, r, bp, wa)
+    fb = 2.0 * a * b / (s + r) if s > 0.0 else s - r
+    if w == 0.0:
+        return lam * fb
+    return lam * fb + (w * a) * max(b, 0.0)
 
 
-def _fb_partials(level, lam, w):
-    """(d phi_lam / da, d phi_lam / db, kink mask or None).  At a kink (r = 0) the FB part is left
-    at 1 for the caller to replace.  a+ b+ is differentiated from inside the box (a > 0): an
-    element of its B-subdifferential."""
-    a, b, r, bp, wa = level
-    kink = None
-    if r.min() == 0.0:
-        kink = r == 0.0
-        r = r + kink
+@kernel
+def _partials(a, b, lam, w):
+    """(d phi / da, d phi / db, kink) of phi_lam; at a kink the FB part is left at 1."""
+    r = math.hypot(a, b)
+    kink = r == 0.0
+    if kink:
+        r = 1.0
     pa = 1.0 - a / r
     pb = 1.0 - b / r
-    if w is not None:
-        pa *= lam
-        pa += w * bp
-        pb *= lam
-        pb += wa * (b > 0.0)
+    if w != 0.0:
+        pa = lam * pa + w * max(b, 0.0)
+        pb = lam * pb + (w * a) * (1.0 if b > 0.0 else 0.0)
     return pa, pb, kink
 
 
-class _Box:
-    """Bound classification of one call and the reformulation Phi built on it.
-
-    Rows without an upper bound get the inner level ``phi(BIG - x, -F) = -F`` (identity), rows
-    without a lower bound the outer identity, so one vectorised expression serves free, single-
-    and double-bounded rows.  Fixed rows (l = u) come out as Phi_i = 0 exactly, because the
-    projection keeps x_i = l_i; their Jacobian rows are replaced by e_i."""
-
-    __slots__ = ("n", "lo0", "hi0", "two_level", "lam_in", "w_in", "lam_out", "w_out", "fixed",
-                 "any_fixed")
-
-    def __init__(self, lo, hi, lam):
-        self.n = lo.shape[0]
-        self.two_level = bool(hi.min() < np.inf)
-        self.lo0 = np.maximum(lo, -_BIG)
-        self.hi0 = np.minimum(hi, _BIG)
-        self.lam_out = self.w_out = self.lam_in = self.w_in = None
-        if lam != 1.0:
-            # scalars when every row has the bound (the usual NCP case): cheaper than arrays
-            if lo.max() == -np.inf:
-                pass
-            elif lo.min() > -np.inf:
-                self.lam_out, self.w_out = lam, 1.0 - lam
-            else:
-                self.w_out = (1.0 - lam) * (lo > -np.inf)
-                self.lam_out = 1.0 - self.w_out
-            if self.two_level:
-                if hi.max() < np.inf:
-                    self.lam_in, self.w_in = lam, 1.0 - lam
-                else:
-                    self.w_in = (1.0 - lam) * (hi < np.inf)
-                    self.lam_in = 1.0 - self.w_in
-        # a fixed row needs a finite upper bound
-        self.fixed = np.flatnonzero(lo == hi) if self.two_level else np.empty(0, dtype=int)
-        self.any_fixed = self.fixed.size > 0
-
-    def phi(self, x, F):
-        """Phi(x) and the FB arguments it was built from (reused by `coefficients`)."""
-        if self.two_level:
-            s, inner = _fb(self.hi0 - x, -F, self.lam_in, self.w_in)
-            b_out = -s
+@kernel
+def _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out):
+    """Per row: finite stand-ins of the bounds and the FB / penalty weights of each level; returns
+    whether any row has an upper bound (two levels)."""
+    n = lo.shape[0]
+    two = False
+    for i in range(n):
+        if hi[i] < np.inf:
+            two = True
+    for i in range(n):
+        lo0[i] = max(lo[i], -BIG)
+        hi0[i] = min(hi[i], BIG)
+        if lam != 1.0 and lo[i] > -np.inf:
+            lam_out[i], w_out[i] = lam, 1.0 - lam
         else:
-            inner = None
-            b_out = F
-        Phi, outer = _fb(x - self.lo0, b_out, self.lam_out, self.w_out)
-        return Phi, (inner, outer)
-
-    def coefficients(self, parts, J):
-        """(da, db) with H = diag(da) + diag(db) J an element of the generalized Jacobian."""
-        inner, outer = parts
-        pa_out, pb_out, kout = _fb_partials(outer, self.lam_out, self.w_out)
-        if self.two_level:
-            pa_in, pb_in, kin = _fb_partials(inner, self.lam_in, self.w_in)
-            if kin is not None or kout is not None:
-                self._kinks(J, kin, kout, pa_in, pb_in, pa_out, pb_out)
-            da = pa_out + pb_out * pa_in
-            db = pb_out * pb_in
+            lam_out[i], w_out[i] = 1.0, 0.0
+        if lam != 1.0 and two and hi[i] < np.inf:
+            lam_in[i], w_in[i] = lam, 1.0 - lam
         else:
-            if kout is not None:
-                self._kinks(J, None, kout, 0.0, 1.0, pa_out, pb_out)
-            da, db = pa_out, pb_out
-        if self.any_fixed:
-            da[self.fixed] = 1.0
-            db[self.fixed] = 0.0
-        return da, db
+            lam_in[i], w_in[i] = 1.0, 0.0
+    return two
 
-    def _kinks(self, J, kin, kout, pa_in, pb_in, pa_out, pb_out):
-        """De Luca-Facchinei-Kanzow choice at a = b = 0, in place: the limit of Jacobians along
-        x + t z, t -> 0+, with z_i = +1 at a lower-bound kink, -1 at an upper-bound kink (into
-        the box), 0 elsewhere.  The penalty term has zero slope at a = b = 0."""
-        n = self.n
-        kin = np.zeros(n, bool) if kin is None else kin
-        kout = np.zeros(n, bool) if kout is None else kout
-        if self.any_fixed:
-            kout[self.fixed] = False
-            kin[self.fixed] = False
-        kinks = kin | kout
-        if not kinks.any():
+
+@kernel
+def _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi):
+    """Phi(x) (Billups' box function, penalised); returns psi = |Phi|^2 / 2."""
+    psi = 0.0
+    for i in range(x.shape[0]):
+        if two:
+            b = -_phi(hi0[i] - x[i], -F[i], lam_in[i], w_in[i])
+        else:
+            b = F[i]
+        v = _phi(x[i] - lo0[i], b, lam_out[i], w_out[i])
+        Phi[i] = v
+        psi += v * v
+    return 0.5 * psi
+
+
+@kernel
+def _natural_residual(x, F, lo, hi):
+    res = 0.0
+    for i in range(x.shape[0]):
+        y = min(max(x[i] - F[i], lo[i]), hi[i])
+        res = max(res, abs(x[i] - y))
+    return res
+
+
+@kernel
+def _finite(v):
+    acc = 0.0
+    for i in range(v.shape[0]):
+        acc += v[i] * v[i]
+    if math.isfinite(acc):
+        return True
+    for i in range(v.shape[0]):
+        if not math.isfinite(v[i]):
+            return False
+    return True
+
+
+@kernel
+def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf,
+                   work):
+    """The solver (module docstring) as a generator of requests REQ_* (see above). x0 is the
+    start; the outcome is left in x, F, info, fbuf, history (merits, length max_iterations + 1)
+    and steps (STEP_* codes). work: (7, n) scratch."""
+    n = x0.shape[0]
+    tol, maxit, armijo = opt[O_TOL], int(opt[O_MAXIT]), opt[O_ARMIJO]
+    memory, min_newton, min_step = int(opt[O_MEMORY]), opt[O_MIN_NEWTON], opt[O_MIN_STEP]
+    rho, power, lm_factor, lam = opt[O_RHO], opt[O_POWER], opt[O_LM], opt[O_LAMBDA]
+    lo0, hi0, lam_in, w_in, lam_out, w_out, gd = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    two = _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out)
+    for i in range(n):
+        xt[i] = min(max(x0[i], lo[i]), hi[i])      # never writes the caller's x0
+    yield REQ_F
+    info[I_NFEV] = 1
+    info[I_NJEV] = 0
+    info[I_ITER] = 0
+    for i in range(n):
+        x[i] = xt[i]
+        F[i] = Ft[i]
+    if not _finite(F):
+        info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_START
+        fbuf[F_RESIDUAL] = np.nan
+        history[0] = np.nan
+        return
+    psi = _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi)
+    residual = _natural_residual(x, F, lo, hi)
+    history[0] = psi
+    nhist = 1
+    best_recent = psi      # (the nonmonotone reference, see the module docstring)
+    eps = np.finfo(np.float64).eps
+    while True:
+        fbuf[F_RESIDUAL], fbuf[F_PSI] = residual, psi
+        if residual <= tol:
+            info[I_STATUS] = S_CONVERGED
             return
-        Jz = np.asarray(J @ (kout.astype(float) - kin)).ravel()
-        lam_in = 1.0 if self.lam_in is None else self.lam_in
-        lam_out = 1.0 if self.lam_out is None else self.lam_out
-        if kin.any():
-            # inner level: a = u - x, b = -F; along z (z_i = -1): (a', b') = (1, -(J z)_i)
-            db_z = -Jz[kin]
-            norm = np.hypot(1.0, db_z)
-            scale = lam_in if np.ndim(lam_in) == 0 else lam_in[kin]
-            pa_in[kin] = scale * (1.0 - 1.0 / norm)
-            pb_in[kin] = scale * (1.0 - db_z / norm)
-        if kout.any():
-            # outer level (z_i = +1): a = x - l, b = -s, s' z = -(phi_a^in + phi_b^in (J z)_i)
-            if np.ndim(pa_in) == 0:
-                db_z = pa_in + pb_in * Jz[kout]
+        if info[I_ITER] >= maxit:
+            info[I_STATUS] = S_MAX_ITERATIONS
+            return
+        info[I_BAD] = 0
+        yield REQ_J
+        info[I_NJEV] += 1
+        if info[I_BAD] != 0:
+            info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_JAC
+            return
+        # generalized Jacobian element H = diag(da) + diag(db) J
+        any_kink = False
+        for i in range(n):
+            fixed = two and lo[i] == hi[i]
+            if two:
+                ai, bi = hi0[i] - x[i], -F[i]
+                pa_in, pb_in, kin = _partials(ai, bi, lam_in[i], w_in[i])
+                s_in = _phi(ai, bi, lam_in[i], w_in[i])
+                b_out = -s_in
             else:
-                db_z = pa_in[kout] + pb_in[kout] * Jz[kout]
-            norm = np.hypot(1.0, db_z)
-            scale = lam_out if np.ndim(lam_out) == 0 else lam_out[kout]
-            pa_out[kout] = scale * (1.0 - 1.0 / norm)
-            pb_out[kout] = scale * (1.0 - db_z / norm)
+                pa_in, pb_in, kin = 0.0, 1.0, False
+                b_out = F[i]
+            pa_out, pb_out, kout = _partials(x[i] - lo0[i], b_out, lam_out[i], w_out[i])
+            if fixed:
+                kin = kout = False
+            zk[i] = (1.0 if kout else 0.0) - (1.0 if kin else 0.0)
+            if kin or kout:
+                any_kink = True
+            # kept for the kink pass: inner partials in da, db; outer ones in Jz and gd
+            da[i], db[i] = pa_in, pb_in
+            Jz[i], gd[i] = pa_out, pb_out
+            if kout:
+                Jz[i] = np.nan          # marks an outer kink (its partials are replaced)
+            if kin:
+                db[i] = np.nan          # marks an inner kink
+        pa_out_store = d                # scratch: the outer partials while Jz is requested
+        for i in range(n):
+            pa_out_store[i] = Jz[i]
+        if any_kink:
+            yield REQ_JZ                # Jz = J zk, zk = +1 at outer kinks, -1 at inner ones
+        for i in range(n):
+            pa_in, pb_in = da[i], db[i]
+            pa_out, pb_out = pa_out_store[i], gd[i]
+            if two and math.isnan(pb_in):
+                # inner level: a = u - x, b = -F; along z (z_i = -1): (a', b') = (1, -(J z)_i)
+                dbz = -Jz[i]
+                nrm = math.hypot(1.0, dbz)
+                pa_in = lam_in[i] * (1.0 - 1.0 / nrm)
+                pb_in = lam_in[i] * (1.0 - dbz / nrm)
+            if math.isnan(pa_out):
+                # outer level (z_i = +1): a = x - l, b = -s, s' z = -(phi_a^in + phi_b^in (J z)_i)
+                dbz = pa_in + pb_in * Jz[i]
+                nrm = math.hypot(1.0, dbz)
+                pa_out = lam_out[i] * (1.0 - 1.0 / nrm)
+                pb_out = lam_out[i] * (1.0 - dbz / nrm)
+            if two:
+                da[i] = pa_out + pb_out * pa_in
+                db[i] = pb_out * pb_in
+            else:
+                da[i], db[i] = pa_out, pb_out
+            if two and lo[i] == hi[i]:
+                da[i], db[i] = 1.0, 0.0
+        # the nonmonotone reference
+        start = max(0, nhist - memory)
+        psi_ref = history[start]
+        for k in range(start, nhist):
+            psi_ref = max(psi_ref, history[k])
+        if nhist > memory:
+            recent = history[start]
+            for k in range(start, nhist):
+                recent = min(recent, history[k])
+            older = history[0]
+            for k in range(0, start):
+                older = min(older, history[k])
+            if recent >= older:
+                psi_ref = psi      # no new best merit in `memory` steps: step monotonically
+        # 1. Newton, 2. Levenberg-Marquardt, 3. projected gradient, each with its line search
+        info[I_SINGULAR] = 0
+        yield REQ_NEWTON               # g = H^T Phi and d = -H^{-1} Phi
+        singular = info[I_SINGULAR] != 0
+        accepted = False
+        kind = STEP_NEWTON
+        while kind <= STEP_GRADIENT and not accepted:
+            usable = False
+            t_min = min_step
+            slope = 0.0
+            if kind == STEP_NEWTON:
+                if not singular:
+                    slope = 0.0
+                    dd = 0.0
+                    for i in range(n):
+                        slope += g[i] * d[i]
+                        dd += d[i] * d[i]
+                    usable = slope <= -rho * dd ** (0.5 * power)
+                    t_min = min_newton
+            elif kind == STEP_LM:
+                fbuf[F_MU] = lm_factor * math.sqrt(2.0 * psi)
+                info[I_SINGULAR] = 0
+                yield REQ_LM
+                if info[I_SINGULAR] == 0:
+                    slope = 0.0
+                    for i in range(n):
+                        slope += g[i] * d[i]
+                    usable = slope < 0.0
+            else:
+                yield REQ_HG
+                usable = True
+            if not usable:
+                kind += 1
+                continue
+            if kind != STEP_GRADIENT:
+                # projected nonmonotone Armijo search along d, quadratic-interpolation backtracking
+                t = 1.0
+                while t >= t_min:
+                    for i in range(n):
+                        xt[i] = min(max(x[i] + t * d[i], lo[i]), hi[i])
+                    yield REQ_F
+                    info[I_NFEV] += 1
+                    if not _finite(Ft):
+                        info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_TRIAL
+                        return
+                    psit = _reformulate(xt, Ft, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phit)
+                    if psit <= psi_ref + armijo * t * slope:
+                        accepted = True
+                        break
+                    # minimiser of the quadratic through psi(0), psi'(0) = slope and psi(t), kept
+                    # in [0.1 t, 0.5 t] so that a bad model neither stalls nor overshoots
+                    curvature = psit - psi - t * slope
+                    t_new = -slope * t * t / (2.0 * curvature) if curvature > 0.0 else 0.5 * t
+                    t = min(max(t_new, 0.1 * t), 0.5 * t)
+            else:
+                # projected gradient path P[x - t g], Armijo on the actual displacement
+                gg = 0.0
+                xmax = 0.0
+                for i in range(n):
+                    gg += g[i] * g[i]
+                    xmax = max(xmax, abs(x[i]))
+                hg = fbuf[F_HGSQ]
+                t = gg / hg if hg > 0.0 else 1.0
+                floor = 4.0 * eps * (1.0 + xmax)
+                while True:
+                    big = 0.0
+                    gstep = 0.0
+                    for i in range(n):
+                        xt[i] = min(max(x[i] - t * g[i], lo[i]), hi[i])
+                        big = max(big, abs(xt[i] - x[i]))
+                        gstep += g[i] * (xt[i] - x[i])
+                    if big <= floor:
+                        break
+                    yield REQ_F
+                    info[I_NFEV] += 1
+                    if not _finite(Ft):
+                        info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_TRIAL
+                        return
+                    psit = _reformulate(xt, Ft, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phit)
+                    if psit <= psi_ref + armijo * gstep:
+                        accepted = True
+                        break
+                    t *= 0.5
+            if not accepted:
+                kind += 1
+        if not accepted:
+            info[I_STATUS] = S_SINGULAR if singular else S_LINE_SEARCH_FAILED
+            return
+        for i in range(n):
+            x[i] = xt[i]
+            F[i] = Ft[i]
+            Phi[i] = Phit[i]
+        psi = psit
+        steps[info[I_ITER]] = kind
+        info[I_ITER] += 1
+        history[nhist] = psi
+        nhist += 1
+        residual = _natural_residual(x, F, lo, hi)
+
+
+# ---------------------------------------------------------------------------------------------
+# dense linear algebra of the requests (compiled; shared by every dense driver)
+# ---------------------------------------------------------------------------------------------
+@kernel
+def dense_solve(A, rhs, out):
+    """out = A^{-1} rhs by LU with partial pivoting (LAPACK through numpy); False when A is
+    exactly singular or the result is not finite."""
+    try:
+        sol = np.linalg.solve(A, rhs)
+    except Exception:  # numpy.linalg.LinAlgError: singular matrix
+        return False
+    acc = 0.0
+    for i in range(sol.shape[0]):
+        acc += sol[i] * sol[i]
+    if not math.isfinite(acc):
+        return False
+    for i in range(sol.shape[0]):
+        out[i] = sol[i]
+    return True
+
+
+@kernel
+def dense_newton(J, da, db, Phi, H, g, d):
+    """H = diag(da) + diag(db) J; g = H^T Phi; d = solve(H, -Phi). Returns False if singular."""
+    n = J.shape[0]
+    for i in range(n):
+        for j in range(n):
+            H[i, j] = J[i, j] * db[i]
+        H[i, i] += da[i]
+    for j in range(n):
+        acc = 0.0
+        for i in range(n):
+            acc += H[i, j] * Phi[i]
+        g[j] = acc
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = -Phi[i]
+    return dense_solve(H, rhs, d)
+
+
+@kernel
+def dense_lm(H, g, mu, d):
+    """d = solve(H^T H + (mu + 16 eps max diag) I, -g). Returns False if singular."""
+    n = H.shape[0]
+    A = H.T @ H
+    big = A[0, 0]
+    for i in range(n):
+        big = max(big, A[i, i])
+    mu = mu + 16.0 * np.finfo(np.float64).eps * big
+    for i in range(n):
+        A[i, i] += mu
+    rhs = np.empty(n)
+    for i in range(n):
+        rhs[i] = -g[i]
+    return dense_solve(A, rhs, d)
+
+
+@kernel
+def dense_hg_sq(H, g):
+    acc = 0.0
+    for i in range(H.shape[0]):
+        v = 0.0
+        for j in range(H.shape[1]):
+            v += H[i, j] * g[j]
+        acc += v * v
+    return acc
+
+
+@kernel
+def matvec(J, v, out):
+    for i in range(J.shape[0]):
+        acc = 0.0
+        for j in range(J.shape[1]):
+            acc += J[i, j] * v[j]
+        out[i] = acc
+
+
+# ---------------------------------------------------------------------------------------------
+# the Python driver: F and J from callables
+# ---------------------------------------------------------------------------------------------
+class Buffers:
+    """The preallocated buffers of one solve of size n (mcp_iterations' arguments)."""
+
+    def __init__(self, n: int, max_iterations: int):
+        self.x, self.F, self.xt, self.Ft = (np.zeros(n) for _ in range(4))
+        self.Phi, self.Phit, self.d, self.g = (np.zeros(n) for _ in range(4))
+        self.da, self.db, self.zk, self.Jz = (np.zeros(n) for _ in range(4))
+        self.history = np.zeros(max_iterations + 1)
+        self.steps = np.zeros(max(max_iterations, 1), np.int64)
+        self.info = np.zeros(NINFO, np.int64)
+        self.fbuf = np.zeros(NFBUF)
+        self.work = np.zeros((7, n))
+
+    def generator(self, x0, lo, hi, opt):
+        return mcp_iterations(x0, lo, hi, opt, self.x, self.F, self.xt, self.Ft, self.Phi, self.Phit, self.d,
+                              self.g, self.da, self.db, self.zk, self.Jz, self.history, self.steps, self.info,
+                              self.fbuf, self.work)
+
+
+_STEP_LETTERS = {STEP_NEWTON: "N", STEP_LM: "L", STEP_GRADIENT: "G"}
+_STATUS = {S_CONVERGED: Status.CONVERGED, S_MAX_ITERATIONS: Status.MAX_ITERATIONS,
+           S_LINE_SEARCH_FAILED: Status.LINE_SEARCH_FAILED, S_SINGULAR: Status.SINGULAR,
+           S_NOT_FINITE: Status.NOT_FINITE}
+
+
+def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
+    """The McpResult (with its one-sentence message) of a finished mcp_iterations."""
+    info = buf.info
+    status = _STATUS[int(info[I_STATUS])]
+    iterations = int(info[I_ITER])
+    residual = float(buf.fbuf[F_RESIDUAL])
+    tol = options.tol
+    why = int(info[I_WHY])
+    if status is Status.CONVERGED:
+        message = f"Converged in {iterations} iterations: natural residual {residual:.3g} <= tol {tol:.3g}."
+    elif status is Status.MAX_ITERATIONS:
+        message = (f"Stopped after {iterations} iterations (max_iterations) with natural residual "
+                   f"{residual:.3g} > tol {tol:.3g}.")
+    elif status is Status.NOT_FINITE:
+        if why == WHY_START:
+            message = "fun returned NaN or inf at the (projected) starting point."
+        elif why == WHY_TRIAL:
+            message = (f"Stopped after {iterations} iterations: fun returned NaN or inf at a trial point of "
+                       "the line search; x is the last finite iterate.")
+        else:
+            message = f"Stopped after {iterations} iterations: jac returned NaN or inf at the current iterate."
+    else:
+        cause = ("the Newton system is singular and neither a Levenberg-Marquardt nor a gradient step "
+                 "decreases the merit" if status is Status.SINGULAR else
+                 "no Newton, Levenberg-Marquardt or gradient step decreases the merit (a stationary point "
+                 "of the merit that is not a solution)")
+        message = f"Stopped after {iterations} iterations: {cause}; natural residual {residual:.3g}."
+    history = tuple(float(v) for v in buf.history[: iterations + 1])
+    steps = "".join(_STEP_LETTERS[int(k)] for k in buf.steps[:iterations])
+    return McpResult(buf.x.copy(), buf.F.copy(), status, iterations, residual, history, message, steps,
+                     int(info[I_NFEV]), int(info[I_NJEV]))
 
 
 def _as_bound(value, n, name):
@@ -409,33 +745,8 @@ def _check_f(F, n):
     return F
 
 
-def _solve_dense(H, rhs):
-    """LU solve; None when H is exactly singular or the result is not finite."""
-    _, _, d, info = lapack.dgesv(H, rhs)
-    if info != 0 or not math.isfinite(d @ d):
-        return None
-    return d
-
-
-def _solve_sparse(H, rhs):
-    try:
-        d = spla.splu(H.tocsc()).solve(rhs)
-    except RuntimeError:  # "Factor is exactly singular"
-        return None
-    if not math.isfinite(d @ d):
-        return None
-    return d
-
-
-def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], object],
-              x0, lower, upper, options: SolverOptions = SolverOptions()) -> McpResult:
-    """Solve MCP(F, l, u): ``l <= x <= u`` with ``F_i(x) = 0`` strictly inside, ``>= 0`` at ``l_i``,
-    ``<= 0`` at ``u_i``.
-
-    fun(x) -> F(x), shape (n,).  jac(x) -> dF/dx, a dense (n, n) array or a scipy.sparse matrix
-    (then sparse LU is used).  x0: warm start, projected onto the box.  lower, upper: shape (n,)
-    or scalars, entries may be -inf / +inf.  Never raises for non-convergence: see result.status.
-    """
+def check_problem(x0, lower, upper, options):
+    """(x0, lo, hi) as float arrays, or ValueError for malformed input."""
     x = np.asarray(x0, dtype=float)
     if x.ndim != 1 or x.shape[0] == 0:
         raise ValueError(f"x0 must be a non-empty 1-D array, got shape {x.shape}")
@@ -455,169 +766,79 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
         raise ValueError("x0 must be finite")
     if not isinstance(options, SolverOptions):
         raise ValueError(f"options must be a SolverOptions, got {type(options).__name__}")
+    return np.ascontiguousarray(x), np.ascontiguousarray(lo), np.ascontiguousarray(hi)
 
-    x = np.minimum(np.maximum(x, lo), hi)  # a new array: the caller's x0 is never written
-    F = _check_f(fun(x), n)
-    nfev, njev = 1, 0
-    if not math.isfinite(float(F @ F)) and not np.isfinite(F).all():
-        return McpResult(x, F, Status.NOT_FINITE, 0, math.nan, (math.nan,),
-                         "fun returned NaN or inf at the (projected) starting point.", "", nfev,
-                         njev)
-    box = _Box(lo, hi, options.fb_lambda)
-    Phi, parts = box.phi(x, F)
-    psi = 0.5 * float(Phi @ Phi)
-    residual = float(np.abs(x - np.minimum(np.maximum(x - F, lo), hi)).max())
-    history = [psi]
 
-    tol = options.tol
-    sigma = options.armijo
-    memory = options.nonmonotone_memory
-    min_newton_step = options.min_newton_step
-    min_step = options.min_step
-    rho, power = options.descent_rho, options.descent_power
-    lm_factor = options.lm_factor
-    eye_stride = n + 1
+def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], object],
+              x0, lower, upper, options: SolverOptions = SolverOptions()) -> McpResult:
+    """Solve MCP(F, l, u): ``l <= x <= u`` with ``F_i(x) = 0`` strictly inside, ``>= 0`` at ``l_i``,
+    ``<= 0`` at ``u_i``.
 
-    def trial(xt):
-        """F, Phi and merit at a trial point; _NotFinite if F has NaN / inf there."""
-        nonlocal nfev
-        Ft = _check_f(fun(xt), n)
-        nfev += 1
-        # F.F is NaN / inf for a NaN / inf entry (and, rarely, on overflow: then check entries)
-        if not math.isfinite(float(Ft @ Ft)) and not np.isfinite(Ft).all():
-            raise _NotFinite("fun returned NaN or inf at a trial point of the line search; "
-                             "x is the last finite iterate.")
-        Phit, partst = box.phi(xt, Ft)
-        psit = 0.5 * float(Phit @ Phit)
-        return Ft, Phit, partst, psit
-
-    def search(d, slope, psi_ref, t_min):
-        """Projected nonmonotone Armijo search along d with quadratic-interpolation backtracking."""
-        t = 1.0
-        while t >= t_min:
-            xt = np.minimum(np.maximum(x + t * d, lo), hi)
-            Ft, Phit, partst, psit = trial(xt)
-            if psit <= psi_ref + sigma * t * slope:
-                return xt, Ft, Phit, partst, psit
-            # minimiser of the quadratic through psi(0), psi'(0) = slope and psi(t), kept in
-            # [0.1 t, 0.5 t] so that a bad model neither stalls nor overshoots
-            curvature = psit - psi - t * slope
-            t_new = -slope * t * t / (2.0 * curvature) if curvature > 0.0 else 0.5 * t
-            t = min(max(t_new, 0.1 * t), 0.5 * t)
-        return None
-
-    def gradient_search(g, Hg_sq, psi_ref):
-        """Projected gradient path P[x - t g], Armijo on the actual displacement."""
-        gg = float(g @ g)
-        t = gg / Hg_sq if Hg_sq > 0.0 else 1.0
-        floor = 4.0 * np.finfo(float).eps * (1.0 + float(np.abs(x).max()))
-        while True:
-            xt = np.minimum(np.maximum(x - t * g, lo), hi)
-            step = xt - x
-            if float(np.abs(step).max()) <= floor:
-                return None
-            Ft, Phit, partst, psit = trial(xt)
-            if psit <= psi_ref + sigma * float(g @ step):
-                return xt, Ft, Phit, partst, psit
-            t *= 0.5
-
-    status = None
-    message = ""
-    iterations = 0
-    steps = []
-    try:
-        while True:
-            if residual <= tol:
-                status = Status.CONVERGED
-                message = (f"Converged in {iterations} iterations: natural residual {residual:.3g} "
-                           f"<= tol {tol:.3g}.")
-                break
-            if iterations >= options.max_iterations:
-                status = Status.MAX_ITERATIONS
-                message = (f"Stopped after {iterations} iterations (max_iterations) with natural "
-                           f"residual {residual:.3g} > tol {tol:.3g}.")
-                break
-
-            J = jac(x)
-            njev += 1
-            sparse = sp.issparse(J)
-            if sparse:
+    fun(x) -> F(x), shape (n,).  jac(x) -> dF/dx, a dense (n, n) array or a scipy.sparse matrix
+    (then sparse LU is used).  x0: warm start, projected onto the box.  lower, upper: shape (n,)
+    or scalars, entries may be -inf / +inf.  Never raises for non-convergence: see result.status.
+    """
+    x, lo, hi = check_problem(x0, lower, upper, options)
+    n = x.shape[0]
+    buf = Buffers(n, options.max_iterations)
+    J = H = None
+    for req in buf.generator(x, lo, hi, options_array(options)):
+        if req == REQ_F:
+            buf.Ft[:] = _check_f(fun(buf.xt.copy()), n)
+        elif req == REQ_J:
+            J = jac(buf.x.copy())
+            if sp.issparse(J):
                 J = J.tocsr()
                 if J.shape != (n, n):
                     raise ValueError(f"jac(x) must return shape ({n}, {n}), got {J.shape}")
                 finite = bool(np.isfinite(J.data).all())
             else:
-                J = np.asarray(J, dtype=float)
+                J = np.ascontiguousarray(J, dtype=float)
                 if J.shape != (n, n):
                     raise ValueError(f"jac(x) must return shape ({n}, {n}), got {J.shape}")
                 finite = bool(np.isfinite(J).all())
-            if not finite:
-                raise _NotFinite("jac returned NaN or inf at the current iterate.")
-
-            da, db = box.coefficients(parts, J)
-            if sparse:
-                H = sp.csr_matrix((J.data * np.repeat(db, np.diff(J.indptr)), J.indices,
-                                   J.indptr), shape=(n, n)) + sp.diags(da, format="csr")
-            else:
-                H = J * db[:, None]
-                H.flat[::eye_stride] += da
-            g = H.T @ Phi
-            psi_ref = max(history[-memory:])
-            if len(history) > memory and min(history[-memory:]) >= min(history[:-memory]):
-                # no new best merit in `memory` steps: a nonmonotone cycle; step monotonically
-                psi_ref = psi
-            accepted = None
-
-            # 1. Newton
-            d = _solve_sparse(H, -Phi) if sparse else _solve_dense(H, -Phi)
-            singular = d is None
-            if not singular:
-                slope = float(g @ d)
-                if slope <= -rho * float(d @ d) ** (0.5 * power):
-                    accepted = search(d, slope, psi_ref, min_newton_step)
-                    kind = "N"
-
-            # 2. Levenberg-Marquardt, damping tied to the residual
-            if accepted is None:
-                mu = lm_factor * math.sqrt(2.0 * psi)
-                if sparse:
-                    HtH = (H.T @ H).tocsr()
-                    mu += 16.0 * np.finfo(float).eps * float(np.abs(HtH.diagonal()).max())
-                    d = _solve_sparse(HtH + sp.diags(np.full(n, mu), format="csr"), -g)
-                else:
-                    HtH = H.T @ H
-                    mu += 16.0 * np.finfo(float).eps * float(HtH.diagonal().max())
-                    HtH.flat[::eye_stride] += mu
-                    d = _solve_dense(HtH, -g)
+            buf.info[I_BAD] = 0 if finite else 1
+        elif req == REQ_JZ:
+            buf.Jz[:] = J @ buf.zk if sp.issparse(J) else _matvec(J, buf.zk)
+        elif req == REQ_NEWTON:
+            if sp.issparse(J):
+                H = (sp.csr_matrix((J.data * np.repeat(buf.db, np.diff(J.indptr)), J.indices, J.indptr),
+                                   shape=(n, n)) + sp.diags(buf.da, format="csr"))
+                buf.g[:] = H.T @ buf.Phi
+                d = _sparse_solve(H, -buf.Phi)
+                buf.info[I_SINGULAR] = d is None
                 if d is not None:
-                    slope = float(g @ d)
-                    if slope < 0.0:
-                        accepted = search(d, slope, psi_ref, min_step)
-                        kind = "L"
+                    buf.d[:] = d
+            else:
+                H = np.empty((n, n))
+                buf.info[I_SINGULAR] = not dense_newton(J, buf.da, buf.db, buf.Phi, H, buf.g, buf.d)
+        elif req == REQ_LM:
+            if sp.issparse(H):
+                HtH = (H.T @ H).tocsr()
+                mu = buf.fbuf[F_MU] + 16.0 * np.finfo(float).eps * float(np.abs(HtH.diagonal()).max())
+                d = _sparse_solve(HtH + sp.diags(np.full(n, mu), format="csr"), -buf.g)
+                buf.info[I_SINGULAR] = d is None
+                if d is not None:
+                    buf.d[:] = d
+            else:
+                buf.info[I_SINGULAR] = not dense_lm(H, buf.g, buf.fbuf[F_MU], buf.d)
+        elif req == REQ_HG:
+            Hg = H @ buf.g
+            buf.fbuf[F_HGSQ] = float(Hg @ Hg)
+    return result_from_buffers(buf, options)
 
-            # 3. projected gradient
-            if accepted is None:
-                Hg = H @ g
-                accepted = gradient_search(g, float(Hg @ Hg), psi_ref)
-                kind = "G"
 
-            if accepted is None:
-                status = Status.SINGULAR if singular else Status.LINE_SEARCH_FAILED
-                cause = ("the Newton system is singular and neither a Levenberg-Marquardt nor a "
-                         "gradient step decreases the merit" if singular else
-                         "no Newton, Levenberg-Marquardt or gradient step decreases the merit "
-                         "(a stationary point of the merit that is not a solution)")
-                message = (f"Stopped after {iterations} iterations: {cause}; natural residual "
-                           f"{residual:.3g}.")
-                break
-            x, F, Phi, parts, psi = accepted
-            iterations += 1
-            history.append(psi)
-            steps.append(kind)
-            residual = float(np.abs(x - np.minimum(np.maximum(x - F, lo), hi)).max())
-    except _NotFinite as exc:
-        status = Status.NOT_FINITE
-        message = f"Stopped after {iterations} iterations: {exc}"
+def _matvec(J, v):
+    out = np.empty(J.shape[0])
+    matvec(J, v, out)
+    return out
 
-    return McpResult(x, F, status, iterations, residual, tuple(history), message, "".join(steps),
-                     nfev, njev)
+
+def _sparse_solve(H, rhs):
+    try:
+        d = spla.splu(H.tocsc()).solve(rhs)
+    except RuntimeError:  # "Factor is exactly singular"
+        return None
+    if not math.isfinite(d @ d):
+        return None
+    return d
