@@ -96,4 +96,15 @@ def kernel(fn):
     return numba.njit(cache=True, error_model="numpy", nogil=True)(fn)
 
 
+def generator_kernel(fn):
+    """A compiled generator, not cached by itself.
+
+    numba 0.68 cannot compile a function that consumes a generator which was loaded from the
+    cache (KeyError in the lowering of the generator type; reproduced with a two-module
+    example). So a generator is never cached on its own: the cached kernels that iterate it
+    compile it into themselves, and Python gets its generator objects from a cached factory
+    kernel (``return the_generator(...)``), which works both ways round."""
+    return numba.njit(cache=False, error_model="numpy", nogil=True)(fn)
+
+
 JIT_DISABLED = bool(numba.config.DISABLE_JIT)

@@ -129,7 +129,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from ._jit import kernel
+from ._jit import generator_kernel, kernel
 
 __all__ = ["solve_mcp", "SolverOptions", "McpResult", "Status"]
 
@@ -378,7 +378,7 @@ def _finite(v):
     return True
 
 
-@kernel
+@generator_kernel
 def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf,
                    work):
     """The solver (module docstring) as a generator of requests REQ_* (see above). x0 is the
@@ -684,9 +684,17 @@ class Buffers:
         self.work = np.zeros((7, n))
 
     def generator(self, x0, lo, hi, opt):
-        return mcp_iterations(x0, lo, hi, opt, self.x, self.F, self.xt, self.Ft, self.Phi, self.Phit, self.d,
-                              self.g, self.da, self.db, self.zk, self.Jz, self.history, self.steps, self.info,
-                              self.fbuf, self.work)
+        return _iterations(x0, lo, hi, opt, self.x, self.F, self.xt, self.Ft, self.Phi, self.Phit, self.d,
+                           self.g, self.da, self.db, self.zk, self.Jz, self.history, self.steps, self.info,
+                           self.fbuf, self.work)
+
+
+@kernel
+def _iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf,
+                work):
+    """mcp_iterations for a Python driver (see _jit.generator_kernel)."""
+    return mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info,
+                          fbuf, work)
 
 
 _STEP_LETTERS = {STEP_NEWTON: "N", STEP_LM: "L", STEP_GRADIENT: "G"}

@@ -37,6 +37,7 @@ from . import dart_adapter as adapter
 from . import formulation as fm
 from . import ncp
 from . import shapes as shp
+from . import step_solver
 from .broadphase import Broadphase
 from .params import Compliance, Friction
 from .support import SupportFriction, SupportSpec
@@ -679,31 +680,22 @@ class ImplicitContactStepper:
 
     # -- pieces of a step ------------------------------------------------------------------------
     def _solve(self, problem, z0):
-        """solve_mcp, then one polishing Newton step if the residual is within (1e-3 tol, tol].
-
-        A converged step becomes the next step's warm start; a resting or rolling contact whose
-        solution is accepted at, say, 0.5 tol would be carried at that error (a slow sink of
-        ~tol h per step) instead of being exact. One more Newton step from a point inside the
-        quadratic basin makes it round-off exact."""
+        """step_solver.solve (compiled, polished; see there), with the retry policy's budget."""
         opts = self.options.solver
         if self._retrying:
             # substeps of a retried step are the hard ones (measured: a box slapping flat onto the
             # ground converges in ~100 LM iterations); give them a larger budget
             opts = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
         try:
-            result = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options=opts)
-        except (ZeroDivisionError, FloatingPointError, OverflowError) as exc:
-            # the rows are undefined at some iterate (e.g. a contact normal along its pair's tangent
-            # axis): a failed solve like any other, never a crash half-way through a step
+            return step_solver.solve(problem, z0, opts)
+        except (ZeroDivisionError, FloatingPointError, OverflowError, ValueError) as exc:
+            if isinstance(exc, ValueError) and "math domain" not in str(exc):
+                raise
+            # under NUMBA_DISABLE_JIT the rows are plain Python and an undefined row raises (compiled,
+            # it is inf / NaN and the solver says NOT_FINITE): a failed solve like any other, never a
+            # crash half-way through a step
             return ncp.McpResult(np.asarray(z0, float).copy(), np.full(len(z0), np.nan), ncp.Status.NOT_FINITE,
                                  0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
-        if result.success and result.residual > 1e-3 * opts.tol:
-            polish = ncp.solve_mcp(problem.fun, problem.jac, result.x, problem.lower, problem.upper,
-                                   options=replace(opts, tol=1e-3 * opts.tol, max_iterations=1))
-            if polish.residual < result.residual:
-                result = replace(result, x=polish.x, f=polish.f, residual=polish.residual,
-                                 iterations=result.iterations + polish.iterations)
-        return result
 
     def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos, supports=()):
         scene = self.scene

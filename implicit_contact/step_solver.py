@@ -1,0 +1,98 @@
+"""Solve one step's MCP: ncp's iteration driven by the step's compiled rows, no Python in between.
+
+ncp.mcp_iterations is the solver, written once as a generator of requests (F at a trial point,
+J, J z, the Newton and Levenberg-Marquardt solves). For a dense step problem (below
+formulation.SPARSE_MIN_UNKNOWNS unknowns) ``_solve_dense`` answers every request inside one
+compiled call: the rows come from rows/assemble.py and the linear algebra from ncp's dense
+kernels, so a whole solve costs one call from Python. A sparse problem is driven from Python by
+ncp.solve_mcp (scipy's sparse LU), with the rows still compiled.
+
+``solve`` also polishes: a converged solve whose residual lies in (1e-3 tol, tol] takes one
+more Newton step at tol / 1000. The solution becomes the next step's warm start; a resting or
+rolling contact accepted at, say, 0.5 tol would be carried at that error (a slow sink of
+~tol h per step) instead of being exact, and one more Newton step from inside the quadratic
+basin makes it round-off exact.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from . import ncp
+from ._jit import kernel
+from .formulation import StepProblem
+from .rows.assemble import assemble
+
+
+@kernel
+def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                 loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
+                 history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL):
+    """One solve of a dense step problem; the outcome in the ncp buffers, the pairs' reports at
+    the final iterate in rep."""
+    no_i = np.zeros(0, np.int64)
+    no_f = np.zeros(0)
+    slot_off = np.zeros(loc_off.shape[0], np.int64)
+    Fj = np.empty(x0.shape[0])
+    for req in ncp.mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history,
+                                  steps, info, fbuf, work):
+        if req == ncp.REQ_F:
+            assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                     loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, False, False)
+        elif req == ncp.REQ_J:
+            assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                     loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, True, False)
+            bad = 0
+            for i in range(J.shape[0]):
+                for j in range(J.shape[1]):
+                    if not np.isfinite(J[i, j]):
+                        bad = 1
+            info[ncp.I_BAD] = bad
+        elif req == ncp.REQ_JZ:
+            ncp.matvec(J, zk, Jz)
+        elif req == ncp.REQ_NEWTON:
+            info[ncp.I_SINGULAR] = 0 if ncp.dense_newton(J, da, db, Phi, H, g, d) else 1
+        elif req == ncp.REQ_LM:
+            info[ncp.I_SINGULAR] = 0 if ncp.dense_lm(H, g, fbuf[ncp.F_MU], d) else 1
+        elif req == ncp.REQ_HG:
+            fbuf[ncp.F_HGSQ] = ncp.dense_hg_sq(H, g)
+    # the reports at the final iterate (the last evaluation may have been a rejected trial)
+    if np.isfinite(fbuf[ncp.F_RESIDUAL]):
+        assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                 loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
+                 st_R, st_p, st_w, st_vo, st_T, FL, JL, False, False)
+
+
+def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions) -> ncp.McpResult:
+    if problem._sparse:
+        return ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options)
+    x0, lo, hi = ncp.check_problem(z0, problem.lower, problem.upper, options)
+    problem._sync()
+    n = x0.shape[0]
+    buf = ncp.Buffers(n, options.max_iterations)
+    t = problem.tables
+    R, p, w, vo, T, FL, JL = problem._work
+    _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
+                 t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, lo, hi, ncp.options_array(options),
+                 buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
+                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, np.empty((n, n)), np.empty((n, n)),
+                 problem._rep, R, p, w, vo, T, FL, JL)
+    result = ncp.result_from_buffers(buf, options)
+    problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
+    return result
+
+
+def solve(problem: StepProblem, z0, options: ncp.SolverOptions) -> ncp.McpResult:
+    """The step's MCP from z0, polished (see the module docstring)."""
+    result = _solve_once(problem, z0, options)
+    if result.success and result.residual > 1e-3 * options.tol:
+        polish = _solve_once(problem, result.x, replace(options, tol=1e-3 * options.tol, max_iterations=1))
+        if polish.residual < result.residual:
+            result = replace(result, x=polish.x, f=polish.f, residual=polish.residual,
+                             iterations=result.iterations + polish.iterations)
+        else:
+            problem._rep_at = None
+    return result
