@@ -201,53 +201,37 @@ class StepProblem:
                  supports: tuple = (), jacobian: str = "auto"):
         if jacobian not in ("auto", "dense", "sparse"):
             raise ValueError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
-        self.h = h
         self._sparse = jacobian == "sparse" or (jacobian == "auto" and layout.n >= SPARSE_MIN_UNKNOWNS)
-        self.supports = tuple(supports)
-        if len(self.supports) != len(layout.supports):
+        if len(tuple(supports)) != len(layout.supports):
             raise ValueError("the layout's support blocks and the problem's supports differ")
-        self.skeletons = skeletons
-        self.bodies = bodies
-        self.specs = specs
         self.layout = layout
         self.lower, self.upper = layout.lower, layout.upper
-        self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
-        self._reduced = []
-        for spec in specs:
-            r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
-            r2 = _reduced_point(spec.obj2, bodies[spec.obj2.body]) if spec.obj2.fixed_halfspace else None
-            self._reduced.append((r1, r2))
-        self.tables = self._build_tables()
-        self._synced = [(None, None)] * len(specs)
+        self.tables = self._build_structure(bodies, specs, tuple(supports), len(skeletons))
         self._pattern = None
-        self._key_f = self._key_j = None
-        self._F = self._J = None
         self._rep = np.zeros((len(specs), rc.NREP))
-        self._rep_at = None
-        self._reports_np = None
         t = self.tables
         nb = len(bodies)
         self._work = (np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)),
                       np.zeros((nb, 12, t.kmax)), np.zeros(t.lmax), np.zeros((t.lmax, t.lmax)))
+        self.refresh(h, skeletons, bodies, specs, supports)
 
     # -- the tables ---------------------------------------------------------------------------
-    def _build_tables(self) -> _Tables:
-        layout, bodies, specs, h = self.layout, self.bodies, self.specs, self.h
+    def _build_structure(self, bodies, specs, supports, n_skeletons) -> _Tables:
+        """The tables' parts fixed by the layout: kinds, columns, functions, local indices."""
+        layout = self.layout
         n = layout.n
         nb = len(bodies)
         body_i = np.zeros((nb, rb.NBI), np.int64)
-        body_f = np.zeros((nb, rb.NBF))
-        jacs = []
         at = 0
         for b, kin in enumerate(bodies):
             vcol = int(kin.vindex[0]) if kin.vindex is not None and len(kin.vindex) else 0
-            bi, bf, jac = kin.tables(vcol)
-            if jac is not None:
-                bi[rb.B_JAC] = at
-                jacs.append(np.ascontiguousarray(jac).ravel())
-                at += jac.size
-            body_i[b], body_f[b] = bi, bf
-        body_jac = np.concatenate(jacs) if jacs else np.zeros(1)
+            body_i[b] = [_KIND_CODE[kin.kind], vcol, kin.ndof, at]
+            if kin.kind in (FREE, ARTICULATED):
+                at += 6 * kin.ndof
+        body_jac = np.zeros(max(at, 1))
+        for b, kin in enumerate(bodies):
+            if kin.kind == FREE:
+                body_jac[body_i[b, rb.B_JAC]:body_i[b, rb.B_JAC] + 36] = _I6.ravel()
         kmax = max([1] + [kin.ndof for kin in bodies])
         # functions: each contact object's functions contiguous
         rows, offsets = [], {}
@@ -260,10 +244,7 @@ class StepProblem:
             return offsets[key]
 
         pair_i = np.zeros((len(specs), rc.NPI), np.int64)
-        pair_f = np.zeros((len(specs), rc.NPF))
         for k, (spec, sl) in enumerate(zip(specs, layout.pairs)):
-            pi, pf = pair_i[k], pair_f[k]
-            d = spec.dim
             kin1, kin2 = bodies[spec.obj1.body], bodies[spec.obj2.body]
             if spec.obj1.body == spec.obj2.body and kin1.vindex is not None:
                 raise ValueError("a pair needs two different bodies")
@@ -273,63 +254,27 @@ class StepProblem:
             end = max(sl.p_n, sl.sigma, sl.p_r, sl.dbar, sl.dn, sl.p_nr) + 1
             rel = lambda idx: int(idx) - c0 if int(idx) >= 0 else -1
             comp = spec.compliance
-            pi[:] = [d, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
-                     int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
-                     int(sl.sigma >= 0), int(sl.p_r >= 0),
-                     rc.RIGID if comp is None else (rc.MIDPOINT if comp.scheme == "midpoint" else rc.PAPER),
-                     spec.compliant_side, c0, end - c0,
-                     rel(sl.a1[0]), len(sl.a1), rel(sl.a2[0]), len(sl.a2), rel(sl.l1[0]), rel(sl.l2[0]),
-                     rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
-                     rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof]
-            fr = spec.friction
-            pf[rc.Q_SP], pf[rc.Q_MU], pf[rc.Q_ET], pf[rc.Q_EO], pf[rc.Q_ER] = (
-                spec.impulse_scale, fr.mu, fr.e_t, fr.e_o, fr.e_r)
-            r1, r2 = self._reduced[k]
-            for red, a0_at, T_at in ((r1, rc.Q_A01, rc.Q_T1), (r2, rc.Q_A02, rc.Q_T2)):
-                T = np.zeros((3, 3))
-                if red is None:
-                    T[:d, :d] = np.eye(d)
-                else:
-                    pf[a0_at:a0_at + d] = red[0]
-                    T[:d, :d - 1] = red[1]
-                pf[T_at:T_at + 9] = T.ravel()
-            if comp is not None:
-                pf[rc.Q_K], pf[rc.Q_C], pf[rc.Q_DMAX] = comp.k_n, comp.c_n, comp.delta_max
-                pf[rc.Q_DPREV] = spec.delta_prev
-            pf[rc.Q_H] = h
+            pair_i[k] = [spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
+                         int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
+                         int(sl.sigma >= 0), int(sl.p_r >= 0),
+                         rc.RIGID if comp is None else (rc.MIDPOINT if comp.scheme == "midpoint" else rc.PAPER),
+                         spec.compliant_side, c0, end - c0,
+                         rel(sl.a1[0]), len(sl.a1), rel(sl.a2[0]), len(sl.a2), rel(sl.l1[0]), rel(sl.l2[0]),
+                         rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
+                         rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof]
         fpar = np.array([r for group in rows for r in group]) if rows else np.zeros((1, 25))
-        # skeletons
-        sk_i = np.zeros((len(self.skeletons), rd.NKI), np.int64)
-        Ms, off = [], 0
-        v0, hforce = np.zeros(n), np.zeros(n)
-        scale = np.ones(n)
-        for s, (sk, vidx) in enumerate(zip(self.skeletons, layout.v_index)):
+        sk_i = np.zeros((n_skeletons, rd.NKI), np.int64)
+        off = 0
+        for s, vidx in enumerate(layout.v_index):
             k = len(vidx)
-            col = int(vidx[0]) if k else 0
-            sk_i[s] = [col, k, off]
-            M = np.ascontiguousarray(sk.M, float)
-            Ms.append(M.ravel())
+            sk_i[s] = [int(vidx[0]) if k else 0, k, off]
             off += k * k
-            v0[col:col + k] = sk.v
-            hforce[col:col + k] = h * np.asarray(sk.force, float)
-            scale[col:col + k] = 1.0 / np.maximum(np.diag(M), 1e-300)
-        scale[_position_rows(layout)] = 1.0 / h
-        sk_M = np.concatenate(Ms) if Ms else np.zeros(1)
-        # supports
-        sup_i = np.zeros((len(self.supports), rs.NSI), np.int64)
-        sup_f = np.zeros((len(self.supports), rs.NSF))
-        for s, (sp, ss) in enumerate(zip(self.supports, layout.supports)):
+        sup_i = np.zeros((len(supports), rs.NSI), np.int64)
+        for s, (sp, ss) in enumerate(zip(supports, layout.supports)):
             kin = bodies[sp.body]
             if kin.kind != PLANAR or kin.vindex is None:
                 raise ValueError("support friction needs a moving planar body")
-            fr = sp.friction
-            R = np.asarray(kin.R0, float)[:2, :2]
-            r = R @ np.asarray(fr.centre, float)
-            E = np.array([[1.0, 0.0, -r[1]], [0.0, 1.0, r[0]], [0.0, 0.0, fr.e_r]])
-            ny = 3 if fr.torsion else 2
-            sup_i[s] = [int(kin.vindex[0]), ss.y.start, ny, ss.sigma]
-            sup_f[s, rs.S_E:rs.S_E + 9] = E.ravel()
-            sup_f[s, rs.S_SCALE] = fr.mu * fr.normal_force * h
+            sup_i[s] = [int(kin.vindex[0]), ss.y.start, 3 if sp.friction.torsion else 2, ss.sigma]
         # plans' local indices: skeletons, pairs, supports
         locs = [np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]) for s in range(len(sk_i))]
         for k, spec in enumerate(specs):
@@ -342,8 +287,74 @@ class StepProblem:
         loc_off = np.cumsum([0] + [len(x) for x in locs]).astype(np.int64)
         loc_idx = (np.concatenate(locs) if locs else np.zeros(0)).astype(np.int64)
         lmax = max([1] + [len(x) for x in locs])
-        return _Tables(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
-                       loc_idx, loc_off, scale, kmax, lmax)
+        return _Tables(body_i, np.zeros((nb, rb.NBF)), body_jac, fpar, sk_i, np.zeros(max(off, 1)), np.zeros(n),
+                       np.zeros(n), pair_i, np.zeros((len(specs), rc.NPF)), sup_i,
+                       np.zeros((len(supports), rs.NSF)), loc_idx, loc_off, np.ones(n), kmax, lmax)
+
+    def refresh(self, h, skeletons, bodies, specs, supports=()):
+        """Fill the tables' values for a step at l (poses, mass matrices, forces, pair parameters)
+        on the structure built for this layout: the same bodies, skeletons and pairs, in order."""
+        t = self.tables
+        layout = self.layout
+        if len(bodies) != len(t.body_i) or len(specs) != len(t.pair_i) or len(skeletons) != len(t.sk_i):
+            raise ValueError("refresh needs the bodies, skeletons and pairs the problem was built for")
+        self.h = h
+        self.skeletons, self.bodies, self.specs = skeletons, bodies, specs
+        self.supports = tuple(supports)
+        self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
+        for b, kin in enumerate(bodies):
+            _, bf, jac = kin.tables(0)
+            t.body_f[b] = bf
+            if kin.kind == ARTICULATED:
+                at = t.body_i[b, rb.B_JAC]
+                t.body_jac[at:at + 6 * kin.ndof] = np.asarray(jac, float).ravel()
+        for s, sk in enumerate(skeletons):
+            col, k, off = t.sk_i[s]
+            M = np.asarray(sk.M, float)
+            t.sk_M[off:off + k * k] = M.ravel()
+            t.v0[col:col + k] = sk.v
+            t.hforce[col:col + k] = h * np.asarray(sk.force, float)
+            t.scale[col:col + k] = 1.0 / np.maximum(np.diag(M), 1e-300)
+        t.scale[_position_rows(layout)] = 1.0 / h
+        self._reduced = []
+        for k, spec in enumerate(specs):
+            r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
+            r2 = _reduced_point(spec.obj2, bodies[spec.obj2.body]) if spec.obj2.fixed_halfspace else None
+            self._reduced.append((r1, r2))
+            pf = t.pair_f[k]
+            d = spec.dim
+            fr = spec.friction
+            pf[rc.Q_SP], pf[rc.Q_MU], pf[rc.Q_ET], pf[rc.Q_EO], pf[rc.Q_ER] = (
+                spec.impulse_scale, fr.mu, fr.e_t, fr.e_o, fr.e_r)
+            for red, a0_at, T_at in ((r1, rc.Q_A01, rc.Q_T1), (r2, rc.Q_A02, rc.Q_T2)):
+                T = np.zeros((3, 3))
+                pf[a0_at:a0_at + 3] = 0.0
+                if red is None:
+                    T[:d, :d] = _EYE[d]
+                else:
+                    pf[a0_at:a0_at + d] = red[0]
+                    T[:d, :d - 1] = red[1]
+                pf[T_at:T_at + 9] = T.ravel()
+            comp = spec.compliance
+            if comp is not None:
+                pf[rc.Q_K], pf[rc.Q_C], pf[rc.Q_DMAX] = comp.k_n, comp.c_n, comp.delta_max
+                pf[rc.Q_DPREV] = spec.delta_prev
+            pf[rc.Q_H] = h
+        for s, sp in enumerate(self.supports):
+            kin = bodies[sp.body]
+            fr = sp.friction
+            R = np.asarray(kin.R0, float)[:2, :2]
+            r = R @ np.asarray(fr.centre, float)
+            E = np.array([[1.0, 0.0, -r[1]], [0.0, 1.0, r[0]], [0.0, 0.0, fr.e_r]])
+            t.sup_f[s, rs.S_E:rs.S_E + 9] = E.ravel()
+            t.sup_f[s, rs.S_SCALE] = fr.mu * fr.normal_force * h
+        self._synced = [(None, None)] * len(specs)
+        self._key_f = self._key_j = None
+        self._F = self._J = None
+        self._rep_at = None
+        self._reports_np = None
+        if self._pattern is not None:
+            self._pattern = self._pattern[:4] + (t.scale[self._pattern_rows],)
 
     def _sync(self):
         """Copy the pairs' k1 and tangent axis into the tables (the stepper may set them late)."""
@@ -377,6 +388,7 @@ class StepProblem:
         cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
         keys, slot = np.unique(rows * n + cols, return_inverse=True)
         entry_rows = keys // n
+        self._pattern_rows = entry_rows
         indptr = np.zeros(n + 1, np.int64)
         np.cumsum(np.bincount(entry_rows, minlength=n), out=indptr[1:])
         self._pattern = (slot.ravel().astype(np.int64), np.array(slot_off, np.int64), (keys % n).astype(np.int64),

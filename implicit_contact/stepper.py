@@ -168,7 +168,7 @@ class ImplicitContactStepper:
         self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
         self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
         self._left_out = False     # this step left a far pair out
-        self._layout_cache = {}
+        self._problems = {}        # persistent step problems, by layout signature and bodies
         self._retrying = False
         self._check_state_finite()
         if self.options.check_penetration_at_start:
@@ -466,7 +466,6 @@ class ImplicitContactStepper:
                     # the body went through a fixed half-space inside the step (see _passed_through)
                     k1_switches += 1
                     reseeded = _reseed(problem, x, self.options.contact_tolerance)
-                    problem._reseeded = False
                     continue
                 if through:
                     result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
@@ -522,7 +521,7 @@ class ImplicitContactStepper:
                 for sp in specs:
                     sp.with_friction = False
                 continue
-            if _attempt < 5 and not getattr(problem, "_reseeded", False):
+            if _attempt < 5:
                 # restart from exact closest points at the poses the failed iterate implies
                 reseeded = _reseed(problem, x, self.options.contact_tolerance)
                 continue
@@ -704,11 +703,13 @@ class ImplicitContactStepper:
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
                                       for sp in specs),
                      tuple((sp.body, sp.friction.torsion) for sp in supports))
-        layout = self._layout_cache.get(signature)
+        key = (signature, tuple(body_ids), tuple((b, scene.bodies[b].kind) for b in body_ids))
+        problem = self._problems.get(key)
+        layout = problem.layout if problem is not None else None
         if layout is None:
-            if len(self._layout_cache) > 256:       # scenes whose pairs keep changing
-                self._layout_cache.clear()
-            layout = self._layout_cache[signature] = fm.build_layout(nv, specs, supports)
+            if len(self._problems) > 256:       # scenes whose pairs keep changing
+                self._problems.clear()
+            layout = fm.build_layout(nv, specs, supports)
         kins = []
         midpoint = self._trapezoidal_skeletons()
         for b in body_ids:
@@ -746,7 +747,11 @@ class ImplicitContactStepper:
         blocks = [fm.SkeletonBlock(states[s].M, states[s].v, states[s].force,
                                    next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
                   for s in involved]
-        return fm.StepProblem(h, blocks, kins, specs, layout, supports)
+        if problem is None:
+            problem = self._problems[key] = fm.StepProblem(h, blocks, kins, specs, layout, supports)
+        else:
+            problem.refresh(h, blocks, kins, specs, supports)
+        return problem
 
     def _pair_spec(self, i, j, h, body_pos, states):
         scene = self.scene
@@ -1359,5 +1364,4 @@ def _reseed(problem, x, tol, adopt_k1=()):
         problem.pack_points(z, k, a1, a2)
         z[sl.l1s] = l1
         z[sl.l2s] = l2
-    problem._reseeded = not adopt_k1
     return z
