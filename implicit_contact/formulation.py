@@ -35,7 +35,7 @@ import math
 import numpy as np
 import scipy.sparse as _sparse
 
-from . import shapes as shp
+# the layout's names are formulation's too (callers build a step with fm.PairSpec, fm.build_layout, ...)
 from .layout import (ARTICULATED, FIXED, FREE, PLANAR, ContactObject, Layout, PairSlots, PairSpec,  # noqa: F401
                      PairState, SkeletonBlock, _as_slice, _least_aligned_axis, _position_rows,
                      _reduced_point, _tangent_basis, build_layout)

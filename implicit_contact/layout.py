@@ -106,7 +106,7 @@ def _position_rows(layout: Layout):
 _REDUCED_CACHE = weakref.WeakKeyDictionary()
 
 
-def _reduced_point(obj: ContactObject, kin: "BodyKinematics"):
+def _reduced_point(obj: ContactObject, kin):
     """For a fixed half-space: a = a0 + T s (a0 on the plane, T orthonormal tangents), world frame.
     Cached per plane function and body pose (the ground is the same every step)."""
     fn = obj.functions[0]
@@ -123,7 +123,7 @@ def _reduced_point(obj: ContactObject, kin: "BodyKinematics"):
     return hit
 
 
-def _reduced_point_uncached(obj: ContactObject, kin: "BodyKinematics"):
+def _reduced_point_uncached(obj: ContactObject, kin):
     dim = kin.dim
     n_b, offset = obj.functions[0].plane()            # body frame
     R, p = kin.R0[:dim, :dim], kin.p0[:dim]

@@ -408,7 +408,6 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     residual = _natural_residual(x, F, lo, hi)
     history[0] = psi
     nhist = 1
-    best_recent = psi      # (the nonmonotone reference, see the module docstring)
     eps = np.finfo(np.float64).eps
     while True:
         fbuf[F_RESIDUAL], fbuf[F_PSI] = residual, psi

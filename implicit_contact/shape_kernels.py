@@ -22,8 +22,6 @@ The Barr derivatives are those of shapes.py's module docstring (rho = |X| / w in
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ._jit import kernel

@@ -1,13 +1,17 @@
 """ImplicitContactStepper: steps a DART world with one geometrically implicit MCP per step.
 
-One step, as a table of contents (DESIGN.md, "One step, as data flows")::
+One step, as a table of contents (``_one_step``; DESIGN.md, "One step, as data flows")::
 
-    snapshot = adapter.snapshot(world)                  # the world as it was, for any failure
-    state    = self._read()                             # q, v, M, forces at l (DART)
-    pairs    = self._candidates(state, h)               # coal broadphase on grown AABBs
-    problem  = formulation.StepProblem(...)             # only the rows the pairs need
-    result   = ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper)
-    commit or restore                                   # write v+, integrate q+ = q (+) h v+
+    state    = self._read(h)                        # DART at l: q, v, M, forces, poses; free flight
+    pairs    = self._candidates(state, keep)        # coal broadphase on grown AABBs (fat-box cache)
+    pairs, far = self._far_pairs(pairs, state, keep)  # pairs that cannot touch within the step left out
+    specs    = self._specs(pairs, state)            # per pair: orientation, friction, warm-start data
+    result   = self._solve_step(specs, state)       # the MCP, with the ordered recoveries (recovery.py)
+    missing  = self._missing_pairs(...)             # far or uncovered pairs the solution could touch
+    self._commit(...)                               # write v+, integrate q+ = q (+) h v+; warm starts
+
+``step`` wraps it in a transaction: the world is snapshotted first and restored exactly on any
+failure, and the failure policy decides what follows (``on_failure``: halve h, raise, warn).
 
 Skeletons without candidate pairs take the exact free step v+ = v + h M^{-1} force (the same
 semi-implicit Euler step DART takes), and a step with no pair near builds no MCP at all.
@@ -31,17 +35,17 @@ import math
 import warnings
 
 import numpy as np
-from scipy.optimize import nnls
 
 from . import dart_adapter as adapter
 from . import formulation as fm
 from . import ncp
+from . import recovery
 from . import shapes as shp
 from . import step_solver
 from .broadphase import Broadphase
 from .params import Compliance, Friction
+from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
-
 
 # ---------------------------------------------------------------------------------------------
 # options and reports
@@ -129,7 +133,8 @@ POLICIES = ("raise", "warn", "retry")
 # steps as "too long for the residual"; rho = 1e-24 still caps steps at ~1e6 for a 1e-5 residual.
 DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
 _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
-_TOUCH = 1e-9   # scaled normal impulse (units of h m g) above which a pair counts as touching
+_TOUCH = recovery.TOUCH   # scaled normal impulse (units of h m g) above which a pair counts as touching
+_FAT_SLACK = 0.05   # fat broadphase boxes: grown by this fraction of a piece's size (plus its motion)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -159,6 +164,11 @@ class ImplicitContactStepper:
         self.scene = adapter.scan_world(world)
         self._objects = self._contact_objects()
         self._broadphase = Broadphase(len(self._objects))
+        self._fat = None           # (lo, hi, pairs) of the last coal query (see _candidates)
+        self._masses = {b.index: b.body_node.getMass() for b in self.scene.bodies}
+        self._sizes = np.array([o.piece.length_scale if math.isfinite(o.piece.length_scale) else 0.0
+                                for o in self._objects])
+        self._gravity_norm = 1.0
         self._pair_friction = {}
         self._pair_compliance = {}
         self._last = {}            # pair key -> dict of the last solution (warm start)
@@ -300,9 +310,11 @@ class ImplicitContactStepper:
 
     def _check_state_finite(self):
         """Refuse, before anything is touched, a state DART accepts but no step can use."""
-        if not np.all(np.isfinite(np.asarray(self.world.getGravity(), float))):
+        gravity = np.asarray(self.world.getGravity(), float)
+        if not np.all(np.isfinite(gravity)):
             raise ValueError(f"the world has non-finite gravity {self.world.getGravity()}; the stepper "
                              "refuses to step it.")
+        self._gravity_norm = float(np.linalg.norm(gravity))
         for s in self.scene.skeletons:
             sk = s.skeleton
             q, v = np.asarray(sk.getPositions()), np.asarray(sk.getVelocities())
@@ -340,38 +352,59 @@ class ImplicitContactStepper:
         return StepReport(True, total_it, worst, report.status, report.contacts, self.world.getTime() + h * n,
                           n, report.message, report.unknowns)
 
-    def _pairs_at(self, poses, margins, extra_poses=None):
-        lo = np.empty((len(self._objects), 3))
-        hi = np.empty((len(self._objects), 3))
-        for k, o in enumerate(self._objects):
-            l_, h_ = o.box(poses[o.body])
-            if extra_poses is not None and o.body in extra_poses:
-                l2, h2 = o.box(extra_poses[o.body])
-                l_, h_ = np.minimum(l_, l2), np.maximum(h_, h2)
-            lo[k], hi[k] = l_, h_
-        out = []
-        for i, j in self._broadphase.candidates(lo, hi, margins):
-            oi, oj = self._objects[i], self._objects[j]
-            if oi.body == oj.body:
-                continue
-            bi, bj = self.scene.bodies[oi.body], self.scene.bodies[oj.body]
-            if bi.world_skeleton == bj.world_skeleton and bi.world_skeleton >= 0:
-                continue           # two bodies of one skeleton: no self-collision (DART's default)
-            if self.scene.bodies[oi.body].kind == adapter.FIXED and self.scene.bodies[oj.body].kind == adapter.FIXED:
-                continue
-            out.append((i, j))
-        return out
-
     def _one_step(self, h, keep=frozenset()) -> StepReport:
         """One step of h; keep: candidate pairs the far-pair filter must not leave out."""
-        scene = self.scene
         t0 = self.world.getTime()
+        state = self._read(h)
+        candidates = self._candidates(state, keep)
+        pairs, far = self._far_pairs(sorted(candidates), state.v_free, h, keep)
+        if not pairs and not self._supports:
+            return self._free_step(state, far, keep, t0)
+        att = self._specs(pairs, state)
+        problem, result = self._solve_step(att, state)
+        if not result.success:
+            return self._failure(problem, result, att.specs, t0, h)
+        contacts, new_last = self._solution(problem, result.x, att.specs)
+        bad = self._check_solution(contacts, att.specs)
+        if bad:
+            return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
+                              t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
+        v_solved = [result.x[problem.layout.v_index[att.sk_pos[s]]] if s in att.sk_pos else state.v_free[s]
+                    for s in range(len(self.scene.skeletons))]
+        far_next, violated = self._far_after(far, v_solved, h)
+        violated |= self._uncovered(candidates, v_solved, state)
+        if violated:
+            # a pair left out could touch at the solved velocities: solve the step again with it
+            return self._one_step(h, keep | violated)
+        self._commit(state, v_solved)
+        self._last = new_last
+        self._far = far_next
+        self._last_support = {sp.key: (result.x[ss.y].copy(), float(result.x[ss.sigma]),
+                                       problem.support_wrench(result.x, s))
+                              for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
+        return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
+                          t0 + h, 1, result.message, problem.layout.n)
+
+    def _read(self, h) -> "_StepState":
+        """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_skeleton), the
+        free-flight velocities v + h M^-1 force, every body's pose now and after a free step, and
+        each piece's motion margin for the broadphase."""
+        scene = self.scene
         states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None, h,
                                         [scene.bodies[b] for b in s.body_indices]
                                         if s.kind == adapter.ARTICULATED else ())
                   for s in scene.skeletons]
         v_free = [st.v + h * np.linalg.solve(st.M, st.force) for st in states]
-        poses_now = {b.index: adapter.body_pose(b) for b in scene.bodies}
+        poses_now = {}
+        for b in scene.bodies:
+            if b.kind == adapter.FIXED:
+                poses_now[b.index] = self._fixed_pose(b)
+            elif b.kind == adapter.ARTICULATED:
+                R, p, _ = states[b.skeleton_index].bodies[b.index]
+                poses_now[b.index] = (R, p)
+            else:
+                st = states[b.skeleton_index]
+                poses_now[b.index] = (st.R, st.p)
         poses_pred = {}
         for s, rec in enumerate(scene.skeletons):
             for b in rec.body_indices:
@@ -392,146 +425,126 @@ class ImplicitContactStepper:
                     ang = abs(v[2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[:3])
                 # the MCP's v+ differs from free flight: allow half a free step more of motion
                 margins[k] += 0.5 * h * (lin + ang * reach)
-        pairs = self._pairs_at(poses_now, margins, extra_poses=poses_pred)
-        if keep:
-            pairs = sorted(set(pairs) | keep)
-        candidates = frozenset(pairs)
-        pairs, far = self._far_pairs(pairs, v_free, h, keep)
+        return _StepState(h, states, v_free, poses_now, poses_pred, margins)
+
+    def _fixed_pose(self, body):
+        """The pose of a fixed body, read from DART every step (a user may move a fixture)."""
+        return adapter.body_pose(body)
+
+    def _candidates(self, state, keep) -> frozenset:
+        """Pairs of pieces whose boxes (now and after a free step, grown by their motion margins)
+        overlap: coal's broadphase, queried on fat boxes and filtered exactly.
+
+        Fat boxes: each piece's grown box, grown once more by its margin plus _FAT_SLACK of its size.
+        While every grown box stays inside its fat box, the pairs whose grown boxes overlap are
+        among the fat pairs coal returned last, so coal is not asked again; the exact closed
+        overlap test of broadphase.py on the fat pairs gives the same candidates as a query on
+        the grown boxes themselves."""
+        lo, hi = self._boxes(state.poses_now, state.poses_pred)
+        m = state.margins[:, None]
+        glo, ghi = lo - m, hi + m
+        fat = self._fat
+        if fat is None or bool(np.any(glo < fat[0])) or bool(np.any(ghi > fat[1])):
+            slack = m + _FAT_SLACK * self._sizes[:, None]
+            flo, fhi = glo - slack, ghi + slack
+            found = [p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)]
+            self._fat = fat = (flo, fhi, np.array(found, dtype=np.int64).reshape(-1, 2))
+        P = fat[2]
+        i, j = P[:, 0], P[:, 1]
+        ok = np.all((glo[i] <= ghi[j]) & (glo[j] <= ghi[i]), axis=1)
+        pairs = {(int(a), int(b)) for a, b in P[ok]}
+        return frozenset(pairs | set(keep))
+
+    def _allowed(self, i, j) -> bool:
+        """Pieces that may touch: two bodies, not of one skeleton (no self-collision, DART's
+        default), not both fixed."""
+        oi, oj = self._objects[i], self._objects[j]
+        if oi.body == oj.body:
+            return False
+        bi, bj = self.scene.bodies[oi.body], self.scene.bodies[oj.body]
+        if bi.world_skeleton == bj.world_skeleton and bi.world_skeleton >= 0:
+            return False
+        return not (bi.kind == adapter.FIXED and bj.kind == adapter.FIXED)
+
+    def _boxes(self, poses, extra_poses=None):
+        """World AABBs (lo, hi), (n, 3), of every piece at poses, joined with its box at
+        extra_poses where given (see _Object.box)."""
+        n = len(self._objects)
+        lo = np.empty((n, 3))
+        hi = np.empty((n, 3))
+        for k, o in enumerate(self._objects):
+            l_, h_ = o.box(poses[o.body])
+            if extra_poses is not None and o.body in extra_poses:
+                l2, h2 = o.box(extra_poses[o.body])
+                l_, h_ = np.minimum(l_, l2), np.maximum(h_, h2)
+            lo[k], hi[k] = l_, h_
+        return lo, hi
+
+    def _pairs_at(self, poses, margins, extra_poses=None):
+        """Candidate pairs from a direct broadphase query (the start-of-run overlap check and the
+        end-of-step check of _uncovered; steps use _candidates)."""
+        lo, hi = self._boxes(poses, extra_poses)
+        return [p for p in self._broadphase.candidates(lo, hi, margins) if self._allowed(*p)]
+
+    def _free_step(self, state, far, keep, t0) -> StepReport:
+        """No pair can touch within the step: every skeleton takes its free-flight step."""
+        far_next, violated = self._far_after(far, state.v_free, state.h)
+        if violated:
+            return self._one_step(state.h, keep | violated)
+        self._commit(state, state.v_free)
+        self._last = {}
+        self._last_support = {}
+        self._far = far_next
+        return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + state.h, 1, "no pair near", 0)
+
+    def _specs(self, pairs, state) -> recovery.Attempt:
+        """The pairs' specs and the step's bodies and skeletons, as the solve loop's state."""
+        scene = self.scene
         supported = sorted(self._supports)
-        if not pairs and not supported:
-            far_next, violated = self._far_after(far, v_free, h)
-            if violated:
-                return self._one_step(h, keep | violated)
-            midpoint = self._trapezoidal_skeletons()
-            for s, rec in enumerate(scene.skeletons):
-                adapter.write_velocities_and_integrate(rec, v_free[s], states[s].v, h, midpoint=s in midpoint)
-            self._last = {}
-            self._last_support = {}
-            self._far = far_next
-            return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
         # skeletons that take part in the MCP (every body with support friction does)
         involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p}
                           .union(scene.bodies[b].skeleton_index for b in supported) - {-1})
-        sk_pos = {s: k for k, s in enumerate(involved)}
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
-        specs = []
-        for i, j in pairs:
-            specs.append(self._pair_spec(i, j, h, body_pos, states))
-        supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
-        nv = [scene.skeletons[s].ndof for s in involved]
-        # Friction rows only for pairs that touch: a pair without rows whose solution touches gets
-        # them and the step is solved again; a pair with rows whose gap opened (p_n = 0 leaves sigma
-        # undetermined, a singular Jacobian) loses them if the solve failed.
-        previous = None            # (problem, x) to warm start a re-solve from
-        sliding = []
-        added = []                 # pairs given friction rows by the last re-solve
-        restarts = 0               # sliding restarts from the current frictionless solution
-        reseeded = None
-        cold = cold_tried = False
-        k1_switches = 0
-        flip_seed, flipped_once = None, set()
-        for _attempt in range(8):
-            problem = self._problem(h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos,
-                                    supports)
-            if flip_seed is not None:
-                z0, flip_seed = _flip_transfer(*flip_seed, problem), None
-            elif reseeded is not None:
-                z0, reseeded = reseeded, None
-            elif previous is None:
-                z0 = self._warm_start(problem, specs, involved, states, v_free, poses_now, h, cold)
+        specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
+        att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, state.h, body_pos, state.states)
+        att.involved, att.body_ids = involved, body_ids
+        att.sk_pos = {s: k for k, s in enumerate(involved)}
+        att.supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
+        att.nv = [scene.skeletons[s].ndof for s in involved]
+        return att
+
+    def _solve_step(self, att, state):
+        """Solve the step's MCP; after each solve the recoveries (recovery.RECOVERIES, in order)
+        may arrange another (recovery.py lists them with the cases that needed them)."""
+        problem = result = None
+        for att.index in range(recovery.MAX_SOLVES):
+            problem = self._problem(state, att)
+            if att.flip is not None:
+                z0, att.flip = recovery._flip_transfer(*att.flip, problem), None
+            elif att.reseeded is not None:
+                z0, att.reseeded = att.reseeded, None
+            elif att.previous is None:
+                z0 = self._warm_start(problem, att, state)
             else:
-                z0 = _transfer(*previous, problem, sliding)
+                z0 = recovery._transfer(*att.previous, problem, att.sliding)
+            att.z0 = z0
             result = self._solve(problem, z0)
-            x = result.x
-            pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
-            # rows on for every pair that touches, off for every pair whose gap is open
-            off = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= _TOUCH]
-            on = [k for k, sp in enumerate(specs)
-                  if sp.friction.active and not sp.with_friction and pn[k] > _TOUCH] if result.success else []
-            if on or off:
-                previous = (problem, result.x if result.success else z0)
-                sliding, restarts = [], 0
-                added = on
-                for k in on + off:
-                    specs[k].with_friction = k in on
-                continue
-            if result.success:
-                # [GI] Prop. 4.3 needs k1 active on body 1; with k1 inactive eqs (28)-(32) admit
-                # interpenetrating "touching" points (a box sliding off a table's edge slides down
-                # its side face). Take k1 from the static closest points there and solve again.
-                stale = _inactive_k1(problem, x, self.options.contact_tolerance)
-                through = _passed_through(problem, x)
-                if through and k1_switches < 2:
-                    # the body went through a fixed half-space inside the step (see _passed_through)
-                    k1_switches += 1
-                    reseeded = _reseed(problem, x, self.options.contact_tolerance)
-                    continue
-                if through:
-                    result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
-                                     message=f"pairs {through} pass through a half-space")
+            for strategy in recovery.RECOVERIES:
+                outcome = strategy(self, att, problem, result)
+                if outcome is not None:
                     break
-                flip = [k for k in stale if k not in flipped_once and len(specs[k].obj1.functions) > 1
-                         and len(specs[k].obj2.functions) > 1]
-                if flip:
-                    # two intersections: the side that touches with a face becomes body 1 (see
-                    # _orient_intersections); seeded from static closest points at the iterate
-                    seeds = {}
-                    for k in flip:
-                        flipped_once.add(k)
-                        old = specs[k]
-                        self._orient_intersections(*old.objects, flip=True)
-                        i, j = pairs[k]
-                        new = self._pair_spec(i, j, h, body_pos, states)
-                        new.with_friction, new.tangent_axis = old.with_friction, old.tangent_axis
-                        seeds[k] = _flip_seed(problem, x, new, self.options.contact_tolerance)
-                        specs[k] = new
-                    flip_seed = (problem, x, seeds)
-                    continue
-                if stale and k1_switches < 2:
-                    k1_switches += 1
-                    reseeded = _reseed(problem, x, self.options.contact_tolerance, adopt_k1=stale)
-                    continue
-                if stale:
-                    result = replace(result, status=ncp.Status.LINE_SEARCH_FAILED,
-                                     message=f"no solution with an active k1 for pairs {stale}")
+            if outcome is not recovery.RETRY:
+                if outcome is not None:
+                    result = outcome          # a recovery turned the solve into a failure
                 break
-            if previous is not None and restarts < 2:
-                # a failed solve from a frictionless solution: restart the stuck contacts sliding;
-                # if that finds none or fails, also the pairs that just got friction rows while
-                # slipping in the frictionless solution (a contact brushing past a wall at 1 m/s
-                # with a tiny p_n slides, and from a sticking start Newton stalls with the friction
-                # far outside the cone). Not at once: a ball starting from rest in a groove (Example
-                # 2 at h = 1e-3) slips ~1e-4 m/s in the frictionless solution but must roll.
-                restarts += 1
-                more = set(sliding) | set(_stuck_sliding(problem, x))
-                if more == set(sliding):
-                    more |= set(_slipping(*previous, added))
-                    restarts = 2
-                if more != set(sliding):
-                    sliding = sorted(more)
-                    continue
-            if not cold_tried and any(sp.key in self._last and self._last[sp.key]["p_n"] > 0.0 for sp in specs):
-                # the warm start carried last step's impulses; after an impact they can be far
-                # from this step's (a pendulum stopped by an obstacle leaves it again: p_n = 0) and
-                # Newton stalls. Start once more as new contacts do: free-flight velocities, zero
-                # impulses, no friction rows (they come back for the pairs that touch).
-                cold = cold_tried = True
-                previous, sliding, restarts = None, [], 0
-                for sp in specs:
-                    sp.with_friction = False
-                continue
-            if _attempt < 5:
-                # restart from exact closest points at the poses the failed iterate implies
-                reseeded = _reseed(problem, x, self.options.contact_tolerance)
-                continue
-            break
-        layout = problem.layout
-        if not result.success:
-            return self._failure(problem, result, specs, t0, h)
-        z = result.x
+        return problem, result
+
+    def _solution(self, problem, z, specs):
+        """(the contact reports, the warm-start records of the next step) of a solved step."""
         contacts = []
         new_last = {}
+        layout = problem.layout
         for k, spec in enumerate(specs):
             st = problem.unpack_pair(z, k)
             contacts.append(self._contact_report(problem, z, k, spec, st))
@@ -548,25 +561,14 @@ class ImplicitContactStepper:
                                   # solve eqs 15-18 exactly); gap is body 1's function at a2, an
                                   # algebraic distance that may exceed it
                                   "distance": float(np.linalg.norm(st.a2 - st.a1)) if st.gap > 0.0 else 0.0}
-        bad = self._check_solution(contacts, specs)
-        if bad:
-            return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
-                              t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", layout.n)
-        v_solved = [z[layout.v_index[sk_pos[s]]] if s in sk_pos else v_free[s] for s in range(len(scene.skeletons))]
-        far_next, violated = self._far_after(far, v_solved, h)
-        violated |= self._uncovered(candidates, v_solved, v_free, states, poses_now, margins, h)
-        if violated:
-            # a pair left out could touch at the solved velocities: solve the step again with it
-            return self._one_step(h, keep | violated)
+        return contacts, new_last
+
+    def _commit(self, state, velocities):
+        """Write v+ and let DART integrate q+ = q (+) h v+ for every mobile skeleton."""
         midpoint = self._trapezoidal_skeletons()
-        for s, rec in enumerate(scene.skeletons):
-            adapter.write_velocities_and_integrate(rec, v_solved[s], states[s].v, h, midpoint=s in midpoint)
-        self._last = new_last
-        self._far = far_next
-        self._last_support = {sp.key: (z[ss.y].copy(), float(z[ss.sigma]), problem.support_wrench(z, s))
-                              for s, (sp, ss) in enumerate(zip(problem.supports, layout.supports))}
-        return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
-                          t0 + h, 1, result.message, layout.n)
+        for s, rec in enumerate(self.scene.skeletons):
+            adapter.write_velocities_and_integrate(rec, velocities[s], state.states[s].v, state.h,
+                                                   midpoint=s in midpoint)
 
     # -- pairs that cannot touch within the step -------------------------------------------------
     def _far_pairs(self, pairs, v_free, h, keep):
@@ -613,16 +615,17 @@ class ImplicitContactStepper:
             bounds[frozenset((self._objects[i].key, self._objects[j].key))] = left
         return bounds, frozenset(violated)
 
-    def _uncovered(self, candidates, v_solved, v_free, states, poses_now, margins, h):
+    def _uncovered(self, candidates, v_solved, state):
         """Pairs the broadphase did not offer that the solved step could bring into contact.
 
-        The candidates come from the free-flight motion plus a margin (see _one_step). An impact can
+        The candidates come from the free-flight motion plus a margin (see _read). An impact can
         change a body's velocity by more than that margin covers (a ball at rest knocked into a wall
         1 cm away, measured: 3 cm deep before this check). Each object's end pose is at most
         h (|dv| + |d omega| rho) from its predicted one (dv: solved minus free-flight velocity);
         if that exceeds the margin's motion allowance, the broadphase runs again at the solved end
         poses and the pairs it finds that were not candidates are returned."""
         scene = self.scene
+        h, states, margins = state.h, state.states, state.margins
         moved = False
         tol = self.options.contact_tolerance
         for k, o in enumerate(self._objects):
@@ -632,7 +635,7 @@ class ImplicitContactStepper:
             if rec.kind == adapter.ARTICULATED or o.radius is None:
                 moved = True
                 break
-            dv = np.asarray(v_solved[rec.skeleton_index]) - np.asarray(v_free[rec.skeleton_index])
+            dv = np.asarray(v_solved[rec.skeleton_index]) - np.asarray(state.v_free[rec.skeleton_index])
             lin, ang = (np.linalg.norm(dv[:2]), abs(dv[2])) if rec.kind == adapter.PLANAR else \
                 (np.linalg.norm(dv[3:6]), np.linalg.norm(dv[:3]))
             if h * (lin + ang * o.radius) > margins[k] - 9.0 * tol:
@@ -646,7 +649,7 @@ class ImplicitContactStepper:
             v_end = 0.5 * (states[s].v + v_solved[s]) if s in midpoint else v_solved[s]
             for b in rec.body_indices:
                 poses_end[b] = _predict_body_pose(scene.bodies[b], states[s], v_end, h)
-        after = self._pairs_at(poses_now, np.full(len(self._objects), 10.0 * tol), extra_poses=poses_end)
+        after = self._pairs_at(state.poses_now, np.full(len(self._objects), 10.0 * tol), extra_poses=poses_end)
         return frozenset(p for p in after if p not in candidates)
 
     def _known_gap(self, i, j):
@@ -696,8 +699,12 @@ class ImplicitContactStepper:
             return ncp.McpResult(np.asarray(z0, float).copy(), np.full(len(z0), np.nan), ncp.Status.NOT_FINITE,
                                  0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
 
-    def _problem(self, h, nv, specs, involved, sk_pos, states, poses_now, body_ids, body_pos, supports=()):
+    def _problem(self, state, att):
+        """The step problem of the attempt's specs (kept by layout signature and bodies, refreshed)."""
         scene = self.scene
+        h, states, poses_now = state.h, state.states, state.poses_now
+        nv, specs, involved, sk_pos = att.nv, att.specs, att.involved, att.sk_pos
+        body_ids, body_pos, supports = att.body_ids, att.body_pos, att.supports
         signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim,
                                        sp.obj1.fixed_halfspace, sp.obj2.fixed_halfspace,
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
@@ -772,9 +779,9 @@ class ImplicitContactStepper:
         dim = max(b1.dim, b2.dim)
         friction = self._pair_friction.get(frozenset((b1.index, b2.index)),
                                            Friction.combine(first.friction, second.friction))
-        masses = [b.body_node.getMass() for b in (b1, b2) if b.kind != adapter.FIXED]
-        g = float(np.linalg.norm(self.world.getGravity()))
-        s_p = h * min(masses) * max(g, 1.0)
+        # the unit of the pair's impulse unknowns (a scaling only; masses as at construction)
+        masses = [self._masses[b.index] for b in (b1, b2) if b.kind != adapter.FIXED]
+        s_p = h * min(masses) * max(self._gravity_norm, 1.0)
         last = self._last.get(key)
         # friction rows for pairs that touched at the last step; the others get them if they touch
         with_friction = friction.active and last is not None and last["p_n"] > _TOUCH * s_p
@@ -826,9 +833,11 @@ class ImplicitContactStepper:
         self._orientation[pair] = known
         return (oi, oj) if known == oi.key else (oj, oi)
 
-    def _warm_start(self, problem, specs, involved, states, v_free, poses_now, h, cold=False):
-        """z0 from the last step's solution (closest points carried along, impulses kept); cold:
-        closest points the same way, but free-flight velocities and zero impulses."""
+    def _warm_start(self, problem, att, state):
+        """z0 from the last step's solution (closest points carried along, impulses kept); cold
+        (att.cold): closest points the same way, but free-flight velocities and zero impulses."""
+        specs, involved, cold = att.specs, att.involved, att.cold
+        states, v_free, poses_now, h = state.states, state.v_free, state.poses_now, state.h
         lay = problem.layout
         z = np.zeros(lay.n)
         touching_skeletons = set()
@@ -966,6 +975,17 @@ class ImplicitContactStepper:
 # ---------------------------------------------------------------------------------------------
 # helpers
 # ---------------------------------------------------------------------------------------------
+@dataclass
+class _StepState:
+    """DART's state at the start of one step of h (ImplicitContactStepper._read)."""
+    h: float
+    states: list               # adapter.SkeletonState per mobile skeleton
+    v_free: list               # free-flight velocities v + h M^-1 force per skeleton
+    poses_now: dict            # body index -> (R, p) at l
+    poses_pred: dict           # mobile body index -> (R, p) after a free step
+    margins: np.ndarray        # per piece: the broadphase's motion margin [m]
+
+
 class _Object:
     """One convex piece of one body, with a cheap world box for the broadphase: the exact AABB
     for unbounded pieces and fixed bodies (recomputed only when the pose changes), and for moving
@@ -1050,37 +1070,6 @@ def _predict_pose(kind, st, v, h):
     return R, np.array([st.q[0] + h * v[0], st.q[1] + h * v[1], 0.0])
 
 
-def _multipliers(spec, P1, P2, a1, a2, normal):
-    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points.
-
-    hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
-    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1; touching points use the normal instead of a1 - a2."""
-    _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
-    _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
-    d = a2 - a1
-    m1 = len(G1)
-    if np.linalg.norm(d) > 1e-12:
-        lam, _ = nnls(G1.T, d)
-        k1 = int(np.argmax(lam)) if m1 > 1 else 0
-        lk = lam[k1]
-        l1 = lam / lk if lk > 0 else np.zeros(m1)
-        l1[k1] = lk
-    else:
-        lam, _ = nnls(G1.T, normal)
-        k1 = int(np.argmax(lam)) if m1 > 1 else 0
-        l1 = lam / lam[k1] if lam[k1] > 0 else np.zeros(m1)
-        l1[k1] = 0.0
-    c = l1.copy()
-    c[k1] = 1.0
-    N1 = c @ G1
-    l2, _ = nnls(G2.T, -N1)
-    if spec.obj1.fixed_halfspace:
-        l1 = np.array([float(np.linalg.norm(d))])
-    if spec.obj2.fixed_halfspace:
-        l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
-    return l1, l2, k1
-
-
 def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
     """Warm start: how far the last closest points a1, a2 travel in one step.
 
@@ -1108,260 +1097,3 @@ def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
     return s1, s2
 
 
-def _static_seed(problem, x, spec, tol, always=False):
-    """(a1, a2, l1, l2, k1) of pair ``spec`` from the static closest points at the poses the
-    iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
-    fixed half-space: its point below the plane); None if the static solve fails, unless always
-    (then _closest_seed's fallbacks)."""
-    from .closest import closest_points
-    P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
-    first, second = spec.objects
-    res = (_closest_seed if always else closest_points)(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
-    if not res.success and not always:
-        return None
-    a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
-    normal = np.asarray(res.normal, float)
-    if res.overlapping or res.distance <= tol:
-        a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
-    deepest = _below_plane_seed(spec, P) if res.overlapping else None
-    if deepest is not None:
-        a1, a2, normal = deepest
-    l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
-    return a1, a2, l1, l2, k1
-
-
-def _flip_seed(problem, x, spec, tol):
-    """_static_seed of a pair whose bodies 1 and 2 were just swapped (spec: the new orientation):
-    (a1, a2, l1, l2); sets spec.k1 from it."""
-    a1, a2, l1, l2, spec.k1 = _static_seed(problem, x, spec, tol, always=True)
-    return a1, a2, l1, l2
-
-
-def _flip_transfer(old, x, seeds, new) -> np.ndarray:
-    """Warm start after swapping bodies 1 and 2 of the pairs in seeds (k -> _flip_seed): the
-    other unknowns as _transfer; the swapped pairs' points from the seeds and their impulses
-    mapped to the new frame. With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the
-    impulse on the new body 2 is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o,
-    p_r' = p_r; sigma is unchanged."""
-    z = _transfer(old, x, new, skip=seeds)
-    for k, (a1, a2, l1, l2) in seeds.items():
-        so, sn = old.layout.pairs[k], new.layout.pairs[k]
-        new.pack_points(z, k, a1, a2)
-        z[sn.l1], z[sn.l2] = l1, l2
-        z[sn.p_n] = x[so.p_n] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
-        if sn.sigma >= 0 and so.sigma >= 0:
-            flip = np.array([-1.0, 1.0][: len(sn.p_t)])
-            z[sn.p_t] = flip * x[so.p_t] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
-            if sn.p_r >= 0 and so.p_r >= 0:
-                z[sn.p_r] = x[so.p_r]
-            z[sn.sigma] = x[so.sigma]
-    return z
-
-
-def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
-    """Warm start of a re-solve whose pairs gained or lost friction rows: copy what both layouts
-    share. New friction rows start at zero impulse and zero slip multiplier, except for the pairs
-    in ``sliding``, which start at the sliding solution that the old solution's slip implies
-    (p_f = -mu p_n E^2 v_t / sigma, sigma = |E v_t|). Measured on Example 2: from the wrong one of
-    the two starts the FB merit crawls along a non-solution valley (a sliding contact held at
-    sigma = 0 with its friction outside the cone), from the right one Newton converges at once."""
-    z = np.zeros(new.layout.n)
-    for a, b in zip(old.layout.v_index, new.layout.v_index):
-        z[b] = x[a]
-    for so, sn in zip(old.layout.supports, new.layout.supports):
-        z[sn.rows] = x[so.rows]
-    for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
-        if k in skip:
-            continue
-        for name in ("a1", "a2", "l1", "l2"):
-            z[getattr(sn, name)] = x[getattr(so, name)]
-        z[sn.p_n] = x[so.p_n]
-        for name in ("dbar", "dn", "p_nr"):
-            if getattr(sn, name) >= 0 and getattr(so, name) >= 0:
-                z[getattr(sn, name)] = x[getattr(so, name)]
-        if sn.sigma < 0:
-            continue
-        if so.sigma >= 0 and k not in sliding:   # both layouts have this pair's friction rows
-            z[sn.rows_fric] = x[so.rows_fric]
-            continue
-        if k not in sliding:
-            continue
-        spec = new.specs[k]
-        st = old.unpack_pair(x, k)
-        vt = st.tangents @ old.relative_velocity(x, k)
-        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
-        sigma = float(np.sqrt(np.sum((e * vt) ** 2)))
-        if sigma > 0.0:
-            z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
-        z[sn.sigma] = sigma
-    return z
-
-
-def _stuck_sliding(problem, x) -> list:
-    """Pairs held at sigma ~ 0 with their friction outside the cone: the FB valley of a contact
-    that must slide (see _transfer). No pairs at an iterate where the rows are undefined (a failed
-    solve that raised inside the rows returns its start)."""
-    try:
-        F = problem.fun(x)
-    except (ZeroDivisionError, FloatingPointError, OverflowError):
-        return []
-    out = []
-    for k, sl in enumerate(problem.layout.pairs):
-        if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
-            out.append(k)
-    return out
-
-
-def _slipping(problem, x, pairs) -> list:
-    """Those of ``pairs`` whose tangential relative velocity at x is not zero."""
-    out = []
-    for k in pairs:
-        try:
-            vt = problem.unpack_pair(x, k).tangents @ problem.relative_velocity(x, k)
-        except (ZeroDivisionError, FloatingPointError, OverflowError):
-            continue
-        if np.any(vt != 0.0):
-            out.append(k)
-    return out
-
-
-# closest points that only seed a step's MCP (which polishes them) need not meet the static
-# solver's own tolerance (1e-12 L); 1e-9 L is a seed well inside Newton's quadratic basin
-_SEED_TOL = 1e-9
-
-
-def _closest_seed(piece1, pose1, piece2, pose2):
-    """Static closest points as a seed of a new pair, never NaN.
-
-    closest_points at its default tolerance; if that fails, again at _SEED_TOL; if that fails
-    too, the support points along the line between the pieces' interior points (the normal
-    along that line). Measured (comparisons.stability, 10 bodies in a box): two exponent-4
-    superquadrics lying flat side by side, 4 cm apart, whose equators are coplanar to round-off
-    (both rest exactly on the floor): the surfaces have zero curvature there, the KKT Jacobian is
-    singular and Newton stops at a natural residual 3.5e-10 L > 1e-12 L; the seed was NaN and the
-    step raised in nnls. At 1e-9 the same solve is accepted and the step's MCP converges."""
-    from .closest import ClosestPointOptions, closest_points
-    res = closest_points(piece1, pose1, piece2, pose2)
-    if res.success:
-        return res
-    relaxed = ClosestPointOptions(solver=ncp.SolverOptions(tol=_SEED_TOL, max_iterations=60))
-    res = closest_points(piece1, pose1, piece2, pose2, relaxed)
-    if res.success:
-        return res
-    (R1, p1), (R2, p2) = pose1, pose2
-    c1, c2 = R1 @ piece1.interior_point + p1, R2 @ piece2.interior_point + p2
-    d = c2 - c1
-    d = d / np.linalg.norm(d) if np.any(d) else np.eye(len(d))[0]
-    points = []
-    for piece, (R, p), c, u in ((piece1, pose1, c1, d), (piece2, pose2, c2, -d)):
-        try:
-            points.append(R @ piece.support(R.T @ u) + p)
-        except (NotImplementedError, ValueError):
-            points.append(c)
-    return replace(res, a1=points[0], a2=points[1], normal=d,
-                   distance=float(np.linalg.norm(points[1] - points[0])))
-
-
-def _central_touch_point(spec, P1, P2, a, normal, tol):
-    """Warm start of a touching pair: the touching point nearest the bodies' centres.
-
-    Flat on flat (a box on the ground) touches along a whole face and the static solver returns
-    any point of it, often a corner; Newton then has to walk the point across the face through a
-    nearly singular system. The point where the dynamics will put it is near the projection of the
-    moving body's centre onto the tangent plane, so that projection is used when it lies on both
-    surfaces (to tol); otherwise the static solution is kept."""
-    centres = [P.p for P, body in ((P2, spec.obj2), (P1, spec.obj1)) if not body.fixed_halfspace]
-    if len(centres) == 2:
-        centres.append(0.5 * (centres[0] + centres[1]))
-    for c in centres:
-        x = c - ((c - a) @ normal) * normal
-        f1, _ = fm.eval_functions(spec.obj1.functions, P1, x)
-        f2, _ = fm.eval_functions(spec.obj2.functions, P2, x)
-        if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
-            return x
-    return a
-
-
-def _passed_through(problem, x) -> list:
-    """Pairs against a fixed half-space whose free multiplier l2 is not positive.
-
-    With a fixed half-space's point reduced onto its plane, the pair 0 <= l2 _|_ -g(a2) is
-    trivial and l2 is free ([GI] Example 1). A body that passes wholly through the half-space in
-    one step then has a spurious solution: a1 on its far side (grad f along +n, l2 = -|grad f|),
-    a2 its projection on the plane, gap >= 0 and no impulse: tunnelling. A valid contact has
-    grad f(a1) along -n, i.e. l2 > 0."""
-    out = []
-    for k, spec in enumerate(problem.specs):
-        sl = problem.layout.pairs[k]
-        # (a fixed half-space as body 1 needs no check: body 2's multipliers are bounded and its
-        # point must then face the plane, and the gap row keeps it above)
-        if spec.obj2.fixed_halfspace and len(sl.l2) and x[int(sl.l2[0])] <= 0.0:
-            out.append(k)
-    return out
-
-
-def _inactive_k1(problem, x, tol) -> list:
-    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1."""
-    out = []
-    for k, spec in enumerate(problem.specs):
-        if len(spec.obj1.functions) < 2:
-            continue
-        b1 = spec.obj1.body
-        a1 = problem.points(x, k)[0]
-        f, _ = fm.eval_functions((spec.obj1.functions[spec.k1],),
-                                 problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1)
-        if f[0] < -tol:
-            out.append(k)
-    return out
-
-
-def _below_plane_seed(spec, P):
-    """Seed (a1, a2, normal) of a body overlapping a fixed half-space: its support point along
-    -n (its deepest point below the plane) and that point's projection on the plane; None when
-    neither side is a fixed half-space or the body has no closed-form support point.
-
-    For an overlap closest_points returns a deepest common point in the algebraic sense, which
-    for a body wholly below the plane (a 100 m/s sphere at h = 0.01 s passes through it within
-    one step) is the body's centre: grad f = 0 there, the pair's normal is undefined and the
-    rows divide by zero. Eqs (15)-(18) want a1 on body 1's surface facing the plane (l2 > 0,
-    see _passed_through); the support point is that, at any depth."""
-    first, second = spec.objects
-    for plane, other, P_plane, P_other, plane_is_1 in ((second, first, P[1], P[0], False),
-                                                       (first, second, P[0], P[1], True)):
-        if not plane.fixed_halfspace:
-            continue
-        n_b, d_b = plane.funcs[0].plane()
-        n = P_plane.R @ n_b
-        d = d_b + float(n @ P_plane.p)
-        try:
-            deep = P_other.R @ other.piece.support(P_other.R.T @ (-n)) + P_other.p
-        except NotImplementedError:
-            return None
-        on_plane = deep - (float(n @ deep) - d) * n
-        return (on_plane, deep, n) if plane_is_1 else (deep, on_plane, -n)
-    return None
-
-
-def _reseed(problem, x, tol, adopt_k1=()):
-    """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
-    replace every pair's closest points and multipliers by the static solution (closest.py) at
-    the poses those velocities imply.
-
-    Newton on the KKT rows of a polytope can stall on a vertex that is no longer the deepest one
-    (a box slapping flat turns its contact point over to the far edge within one step); the
-    static problem is convex and its solver finds the right vertex, face or deepest point."""
-    z = x.copy()
-    for k, spec in enumerate(problem.specs):
-        seed = _static_seed(problem, x, spec, tol)
-        if seed is None:
-            continue
-        a1, a2, l1, l2, k1 = seed
-        if k in adopt_k1:
-            spec.k1 = k1         # the caller rebuilds the problem with it
-        elif k1 != spec.k1:
-            continue             # the layout's k1 is fixed for this problem; keep the old seed
-        sl = problem.layout.pairs[k]
-        problem.pack_points(z, k, a1, a2)
-        z[sl.l1s] = l1
-        z[sl.l2s] = l2
-    return z

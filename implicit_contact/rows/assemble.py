@@ -14,8 +14,6 @@ storage. Then the rows are scaled: F *= scale, J[i, :] *= scale[i].
 """
 from __future__ import annotations
 
-import numpy as np
-
 from .._jit import kernel
 from .bodies import body_states
 from .contact import pair_rows

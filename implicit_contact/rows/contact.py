@@ -342,12 +342,10 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     for q in range(d):
         FL[own + row] = N1[q] + N2[q]                                  # (16) / (29)
         row += 1
-    row17 = row
     if not red1:
         for i in range(m1):
             FL[own + row] = -(f1[i] + off1)                            # (17) / (30) / (34)
             row += 1
-    row18 = row
     if not red2:
         for j in range(m2):
             FL[own + row] = -(f2[j] + off2)                            # (18) / (31) / (34)
@@ -357,7 +355,6 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         if f12[i] > f12[ia]:
             ia = i                                                     # the first maximiser
     gap = f12[ia] + off1
-    row19 = row
     FL[own + row] = gap                                                # (19) / (32) / (36)
     row += 1
 
@@ -434,9 +431,9 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     dspring = 0.0
     if comp != RIGID:
         if side == 2:
-            Gc_all, fc_all, ac, Rc, pc, mc, fco = G2, f2, a2, R2, p2, m2, f2o
+            fc_all, ac, Rc, pc, mc, fco = f2, a2, R2, p2, m2, f2o
         else:
-            Gc_all, fc_all, ac, Rc, pc, mc, fco = G1, f1, a1, R1, p1, m1, f1o
+            fc_all, ac, Rc, pc, mc, fco = f1, a1, R1, p1, m1, f1o
         jc = 0
         for j in range(1, mc):
             if fc_all[j] > fc_all[jc]:

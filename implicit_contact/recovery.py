@@ -1,0 +1,500 @@
+"""What a step does when its first solve is not the answer: named recoveries, in order.
+
+A step's MCP is solved from a warm start (the last step's solution carried along). After each
+solve the stepper asks the recoveries below, in this order, whether the solution must be
+corrected or the solve restarted; the first that applies arranges the next solve (a new start,
+or new rows) and the step is solved again, up to MAX_SOLVES solves. A converged solve that no
+recovery objects to is the step's answer; a failed solve that none can restart is a failed step
+(the stepper's failure policy then takes over: halving h, see ImplicitContactStepper.step).
+
+    recovery             applies to   the case that needed it                           guarding test
+    friction_rows        any          a touching pair without friction rows, or a pair  tests/test_disc.py (slide to roll),
+                                      with rows whose gap opened (sigma undetermined)   tests/test_spheres.py
+    passed_through       converged    a body wholly through a fixed half-space: the     tests/test_rigid3d.py::test_fast_sphere_
+                                      far-side root of eqs (15)-(19) (100 m/s sphere)   does_not_tunnel_through_a_half_space
+    flip_intersections   converged    two intersections, k1 inactive at a1: a box        tests/test_rigid3d.py::test_body_sliding_
+                                      tipping over a table's edge (body 1 must be the   off_a_table_edge_tips_over_it, test_hexagon_
+                                      side touching with a face)                        tips_off_a_wedge_and_lands_on_a_face_2d
+    adopt_k1             converged    k1 inactive at a1 after the flip (or one          tests/test_rigid3d.py (tipping tests)
+                                      intersection): k1 from the static closest points
+    restart_sliding      failed       a re-solve after friction rows were added stalls  tests/test_spheres.py::test_start_from_
+                                      in the FB valley of a contact that must slide     rest_at_small_h_needs_no_retry,
+                                      (sigma = 0, friction outside the cone)            tests/test_stability_cases.py (10 bodies)
+    cold_start           failed       the warm start carried impulses an impact made    tests/test_articulated.py::test_pendulum_
+                                      wrong (a pendulum leaving the obstacle it hit)    strikes_ellipsoid_without_penetration_...
+    reseed               failed       Newton stalled on a polytope vertex that is no     tests/test_rigid3d.py::test_dart_box_
+                                      longer the deepest (a box slapping flat)          dropped_on_an_edge_lands_flat_...
+
+Each recovery is a function (stepper, attempt, problem, result) -> None (does not apply), RETRY
+(solve again as arranged on the attempt) or a failed McpResult that ends the step's solves;
+``Attempt`` is the solve loop's state. The helpers below them (seeds from static
+closest points, transfers of a solution between layouts) are shared by several recoveries.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import nnls
+
+from . import formulation as fm
+from . import ncp
+
+MAX_SOLVES = 8      # solves per step (the recoveries below restart at most this often in all)
+RETRY = "retry"
+TOUCH = 1e-9        # scaled normal impulse (units of h m g) above which a pair counts as touching
+
+
+@dataclass
+class Attempt:
+    """The solve loop's state within one step (ImplicitContactStepper._solve_step).
+
+    How the next solve starts, in this precedence: ``flip`` (problem, x, seeds) after a swap of
+    bodies 1 and 2; ``reseeded`` (a start vector) from static closest points; the warm start
+    from the last step if ``previous`` is None (``cold``: without its impulses); else a transfer
+    of ``previous`` (problem, x) to the new layout, sliding restarts for ``sliding``."""
+    specs: list
+    pairs: list
+    tol: float
+    h: float
+    body_pos: dict                                 # the step's context, for rebuilding pair specs
+    states: list
+    previous: tuple | None = None
+    sliding: list = field(default_factory=list)
+    added: list = field(default_factory=list)      # pairs given friction rows by the last re-solve
+    restarts: int = 0                              # sliding restarts from the current previous
+    reseeded: np.ndarray | None = None
+    flip: tuple | None = None
+    cold: bool = False
+    cold_tried: bool = False
+    k1_switches: int = 0
+    flipped_once: set = field(default_factory=set)
+    index: int = 0                                 # solves so far
+    z0: np.ndarray | None = None
+
+
+def friction_rows(stepper, att: Attempt, problem, result):
+    """Friction rows for every pair that touches, none for a pair whose gap is open.
+
+    Rows are built for the pairs that touched at the last step; a pair without rows whose
+    solution touches (p_n > 0) gets them, and a pair with rows whose solution has p_n = 0 loses
+    them (sigma is then undetermined: a singular Jacobian; a converged solution with an open
+    gap keeps its rows and is checked, |p_t| <= mu p_n, by the stepper). Solved again from the
+    current solution (a transfer)."""
+    x = result.x
+    specs = att.specs
+    pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
+    off = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= TOUCH]
+    on = [k for k, sp in enumerate(specs)
+          if sp.friction.active and not sp.with_friction and pn[k] > TOUCH] if result.success else []
+    if not (on or off):
+        return None
+    att.previous = (problem, result.x if result.success else att.z0)
+    att.sliding, att.restarts = [], 0
+    att.added = on
+    for k in on + off:
+        specs[k].with_friction = k in on
+    return RETRY
+
+
+def passed_through(stepper, att: Attempt, problem, result):
+    """A body that went wholly through a fixed half-space inside the step (see
+    _passed_through): re-seeded from static closest points, twice at most, then a failure."""
+    if not result.success:
+        return None
+    through = _passed_through(problem, result.x)
+    if not through:
+        return None
+    if att.k1_switches < 2:
+        att.k1_switches += 1
+        att.reseeded = _reseed(problem, result.x, att.tol)
+        return RETRY
+    return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"pairs {through} pass through a half-space")
+
+
+def flip_intersections(stepper, att: Attempt, problem, result):
+    """[GI] Prop. 4.3 needs k1 active on body 1; with k1 inactive eqs (28)-(32) admit
+    interpenetrating "touching" points (a box sliding off a table's edge slides down its side
+    face). Between two intersections the side that touches with a face becomes body 1
+    (ImplicitContactStepper._orient_intersections, once per pair and step), seeded from static
+    closest points at the iterate."""
+    if not result.success:
+        return None
+    x = result.x
+    stale = _inactive_k1(problem, x, att.tol)
+    flip = [k for k in stale if k not in att.flipped_once and len(att.specs[k].obj1.functions) > 1
+            and len(att.specs[k].obj2.functions) > 1]
+    if not flip:
+        return None
+    seeds = {}
+    for k in flip:
+        att.flipped_once.add(k)
+        old = att.specs[k]
+        stepper._orient_intersections(*old.objects, flip=True)
+        new = stepper._pair_spec(*att.pairs[k], att.h, att.body_pos, att.states)
+        new.with_friction, new.tangent_axis = old.with_friction, old.tangent_axis
+        seeds[k] = _flip_seed(problem, x, new, att.tol)
+        att.specs[k] = new
+    att.flip = (problem, x, seeds)
+    return RETRY
+
+
+def adopt_k1(stepper, att: Attempt, problem, result):
+    """k1 still inactive at a1 (after the flip, or with one intersection): k1 and the seed from
+    the static closest points at the iterate, twice at most; then a failure (no solution with
+    an active k1, [GI] Sec. 7)."""
+    if not result.success:
+        return None
+    stale = _inactive_k1(problem, result.x, att.tol)
+    if not stale:
+        return None
+    if att.k1_switches < 2:
+        att.k1_switches += 1
+        att.reseeded = _reseed(problem, result.x, att.tol, adopt_k1=stale)
+        return RETRY
+    return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"no solution with an active k1 for pairs {stale}")
+
+
+def restart_sliding(stepper, att: Attempt, problem, result):
+    """A failed solve from a frictionless solution: restart the stuck contacts sliding; if that
+    finds none or fails, also the pairs that just got friction rows while slipping in the
+    frictionless solution (a contact brushing past a wall at 1 m/s with a tiny p_n slides, and
+    from a sticking start Newton stalls with the friction far outside the cone). Not at once: a
+    ball starting from rest in a groove (Example 2 at h = 1e-3) slips ~1e-4 m/s in the
+    frictionless solution but must roll."""
+    if result.success or att.previous is None or att.restarts >= 2:
+        return None
+    att.restarts += 1
+    more = set(att.sliding) | set(_stuck_sliding(problem, result.x))
+    if more == set(att.sliding):
+        more |= set(_slipping(*att.previous, att.added))
+        att.restarts = 2
+    if more == set(att.sliding):
+        return None
+    att.sliding = sorted(more)
+    return RETRY
+
+
+def cold_start(stepper, att: Attempt, problem, result):
+    """The warm start carried last step's impulses; after an impact they can be far from this
+    step's (a pendulum stopped by an obstacle leaves it again: p_n = 0) and Newton stalls. Start
+    once more as new contacts do: free-flight velocities, zero impulses, no friction rows (they
+    come back for the pairs that touch)."""
+    if result.success or att.cold_tried:
+        return None
+    if not any(sp.key in stepper._last and stepper._last[sp.key]["p_n"] > 0.0 for sp in att.specs):
+        return None
+    att.cold = att.cold_tried = True
+    att.previous, att.sliding, att.restarts = None, [], 0
+    for sp in att.specs:
+        sp.with_friction = False
+    return RETRY
+
+
+def reseed(stepper, att: Attempt, problem, result):
+    """Restart from exact closest points at the poses the failed iterate implies: Newton on the
+    KKT rows of a polytope can stall on a vertex that is no longer the deepest one (a box
+    slapping flat turns its contact point over to the far edge within one step); the static
+    problem is convex and its solver finds the right vertex, face or deepest point. At most in
+    the first five solves."""
+    if result.success or att.index >= 5:
+        return None
+    att.reseeded = _reseed(problem, result.x, att.tol)
+    return RETRY
+
+
+RECOVERIES = (friction_rows, passed_through, flip_intersections, adopt_k1, restart_sliding, cold_start, reseed)
+
+
+# ---------------------------------------------------------------------------------------------
+# seeds and transfers
+# ---------------------------------------------------------------------------------------------
+def _multipliers(spec, P1, P2, a1, a2, normal):
+    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points.
+
+    hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
+    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1; touching points use the normal instead of a1 - a2."""
+    _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
+    _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
+    d = a2 - a1
+    m1 = len(G1)
+    if np.linalg.norm(d) > 1e-12:
+        lam, _ = nnls(G1.T, d)
+        k1 = int(np.argmax(lam)) if m1 > 1 else 0
+        lk = lam[k1]
+        l1 = lam / lk if lk > 0 else np.zeros(m1)
+        l1[k1] = lk
+    else:
+        lam, _ = nnls(G1.T, normal)
+        k1 = int(np.argmax(lam)) if m1 > 1 else 0
+        l1 = lam / lam[k1] if lam[k1] > 0 else np.zeros(m1)
+        l1[k1] = 0.0
+    c = l1.copy()
+    c[k1] = 1.0
+    N1 = c @ G1
+    l2, _ = nnls(G2.T, -N1)
+    if spec.obj1.fixed_halfspace:
+        l1 = np.array([float(np.linalg.norm(d))])
+    if spec.obj2.fixed_halfspace:
+        l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
+    return l1, l2, k1
+
+
+def _static_seed(problem, x, spec, tol, always=False):
+    """(a1, a2, l1, l2, k1) of pair ``spec`` from the static closest points at the poses the
+    iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
+    fixed half-space: its point below the plane); None if the static solve fails, unless always
+    (then _closest_seed's fallbacks)."""
+    from .closest import closest_points
+    P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
+    first, second = spec.objects
+    res = (_closest_seed if always else closest_points)(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
+    if not res.success and not always:
+        return None
+    a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+    normal = np.asarray(res.normal, float)
+    if res.overlapping or res.distance <= tol:
+        a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
+    deepest = _below_plane_seed(spec, P) if res.overlapping else None
+    if deepest is not None:
+        a1, a2, normal = deepest
+    l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
+    return a1, a2, l1, l2, k1
+
+
+def _flip_seed(problem, x, spec, tol):
+    """_static_seed of a pair whose bodies 1 and 2 were just swapped (spec: the new orientation):
+    (a1, a2, l1, l2); sets spec.k1 from it."""
+    a1, a2, l1, l2, spec.k1 = _static_seed(problem, x, spec, tol, always=True)
+    return a1, a2, l1, l2
+
+
+def _flip_transfer(old, x, seeds, new) -> np.ndarray:
+    """Warm start after swapping bodies 1 and 2 of the pairs in seeds (k -> _flip_seed): the
+    other unknowns as _transfer; the swapped pairs' points from the seeds and their impulses
+    mapped to the new frame. With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the
+    impulse on the new body 2 is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o,
+    p_r' = p_r; sigma is unchanged."""
+    z = _transfer(old, x, new, skip=seeds)
+    for k, (a1, a2, l1, l2) in seeds.items():
+        so, sn = old.layout.pairs[k], new.layout.pairs[k]
+        new.pack_points(z, k, a1, a2)
+        z[sn.l1], z[sn.l2] = l1, l2
+        z[sn.p_n] = x[so.p_n] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+        if sn.sigma >= 0 and so.sigma >= 0:
+            flip = np.array([-1.0, 1.0][: len(sn.p_t)])
+            z[sn.p_t] = flip * x[so.p_t] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+            if sn.p_r >= 0 and so.p_r >= 0:
+                z[sn.p_r] = x[so.p_r]
+            z[sn.sigma] = x[so.sigma]
+    return z
+
+
+def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
+    """Warm start of a re-solve whose pairs gained or lost friction rows: copy what both layouts
+    share. New friction rows start at zero impulse and zero slip multiplier, except for the pairs
+    in ``sliding``, which start at the sliding solution that the old solution's slip implies
+    (p_f = -mu p_n E^2 v_t / sigma, sigma = |E v_t|). Measured on Example 2: from the wrong one of
+    the two starts the FB merit crawls along a non-solution valley (a sliding contact held at
+    sigma = 0 with its friction outside the cone), from the right one Newton converges at once."""
+    z = np.zeros(new.layout.n)
+    for a, b in zip(old.layout.v_index, new.layout.v_index):
+        z[b] = x[a]
+    for so, sn in zip(old.layout.supports, new.layout.supports):
+        z[sn.rows] = x[so.rows]
+    for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
+        if k in skip:
+            continue
+        for name in ("a1", "a2", "l1", "l2"):
+            z[getattr(sn, name)] = x[getattr(so, name)]
+        z[sn.p_n] = x[so.p_n]
+        for name in ("dbar", "dn", "p_nr"):
+            if getattr(sn, name) >= 0 and getattr(so, name) >= 0:
+                z[getattr(sn, name)] = x[getattr(so, name)]
+        if sn.sigma < 0:
+            continue
+        if so.sigma >= 0 and k not in sliding:   # both layouts have this pair's friction rows
+            z[sn.rows_fric] = x[so.rows_fric]
+            continue
+        if k not in sliding:
+            continue
+        spec = new.specs[k]
+        st = old.unpack_pair(x, k)
+        vt = st.tangents @ old.relative_velocity(x, k)
+        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
+        sigma = float(np.sqrt(np.sum((e * vt) ** 2)))
+        if sigma > 0.0:
+            z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
+        z[sn.sigma] = sigma
+    return z
+
+
+def _stuck_sliding(problem, x) -> list:
+    """Pairs held at sigma ~ 0 with their friction outside the cone: the FB valley of a contact
+    that must slide (see _transfer). No pairs at an iterate where the rows are undefined (a failed
+    solve that raised inside the rows returns its start)."""
+    try:
+        F = problem.fun(x)
+    except (ZeroDivisionError, FloatingPointError, OverflowError):
+        return []
+    out = []
+    for k, sl in enumerate(problem.layout.pairs):
+        if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
+            out.append(k)
+    return out
+
+
+def _slipping(problem, x, pairs) -> list:
+    """Those of ``pairs`` whose tangential relative velocity at x is not zero."""
+    out = []
+    for k in pairs:
+        try:
+            vt = problem.unpack_pair(x, k).tangents @ problem.relative_velocity(x, k)
+        except (ZeroDivisionError, FloatingPointError, OverflowError):
+            continue
+        if np.any(vt != 0.0):
+            out.append(k)
+    return out
+
+
+# closest points that only seed a step's MCP (which polishes them) need not meet the static
+# solver's own tolerance (1e-12 L); 1e-9 L is a seed well inside Newton's quadratic basin
+_SEED_TOL = 1e-9
+
+
+def _closest_seed(piece1, pose1, piece2, pose2):
+    """Static closest points as a seed of a new pair, never NaN.
+
+    closest_points at its default tolerance; if that fails, again at _SEED_TOL; if that fails
+    too, the support points along the line between the pieces' interior points (the normal
+    along that line). Measured (comparisons.stability, 10 bodies in a box): two exponent-4
+    superquadrics lying flat side by side, 4 cm apart, whose equators are coplanar to round-off
+    (both rest exactly on the floor): the surfaces have zero curvature there, the KKT Jacobian is
+    singular and Newton stops at a natural residual 3.5e-10 L > 1e-12 L; the seed was NaN and the
+    step raised in nnls. At 1e-9 the same solve is accepted and the step's MCP converges."""
+    from .closest import ClosestPointOptions, closest_points
+    res = closest_points(piece1, pose1, piece2, pose2)
+    if res.success:
+        return res
+    relaxed = ClosestPointOptions(solver=ncp.SolverOptions(tol=_SEED_TOL, max_iterations=60))
+    res = closest_points(piece1, pose1, piece2, pose2, relaxed)
+    if res.success:
+        return res
+    (R1, p1), (R2, p2) = pose1, pose2
+    c1, c2 = R1 @ piece1.interior_point + p1, R2 @ piece2.interior_point + p2
+    d = c2 - c1
+    d = d / np.linalg.norm(d) if np.any(d) else np.eye(len(d))[0]
+    points = []
+    for piece, (R, p), c, u in ((piece1, pose1, c1, d), (piece2, pose2, c2, -d)):
+        try:
+            points.append(R @ piece.support(R.T @ u) + p)
+        except (NotImplementedError, ValueError):
+            points.append(c)
+    return replace(res, a1=points[0], a2=points[1], normal=d,
+                   distance=float(np.linalg.norm(points[1] - points[0])))
+
+
+def _central_touch_point(spec, P1, P2, a, normal, tol):
+    """Warm start of a touching pair: the touching point nearest the bodies' centres.
+
+    Flat on flat (a box on the ground) touches along a whole face and the static solver returns
+    any point of it, often a corner; Newton then has to walk the point across the face through a
+    nearly singular system. The point where the dynamics will put it is near the projection of the
+    moving body's centre onto the tangent plane, so that projection is used when it lies on both
+    surfaces (to tol); otherwise the static solution is kept."""
+    centres = [P.p for P, body in ((P2, spec.obj2), (P1, spec.obj1)) if not body.fixed_halfspace]
+    if len(centres) == 2:
+        centres.append(0.5 * (centres[0] + centres[1]))
+    for c in centres:
+        x = c - ((c - a) @ normal) * normal
+        f1, _ = fm.eval_functions(spec.obj1.functions, P1, x)
+        f2, _ = fm.eval_functions(spec.obj2.functions, P2, x)
+        if abs(np.max(f1)) <= tol and abs(np.max(f2)) <= tol:
+            return x
+    return a
+
+
+def _passed_through(problem, x) -> list:
+    """Pairs against a fixed half-space whose free multiplier l2 is not positive.
+
+    With a fixed half-space's point reduced onto its plane, the pair 0 <= l2 _|_ -g(a2) is
+    trivial and l2 is free ([GI] Example 1). A body that passes wholly through the half-space in
+    one step then has a spurious solution: a1 on its far side (grad f along +n, l2 = -|grad f|),
+    a2 its projection on the plane, gap >= 0 and no impulse: tunnelling. A valid contact has
+    grad f(a1) along -n, i.e. l2 > 0."""
+    out = []
+    for k, spec in enumerate(problem.specs):
+        sl = problem.layout.pairs[k]
+        # (a fixed half-space as body 1 needs no check: body 2's multipliers are bounded and its
+        # point must then face the plane, and the gap row keeps it above)
+        if spec.obj2.fixed_halfspace and len(sl.l2) and x[int(sl.l2[0])] <= 0.0:
+            out.append(k)
+    return out
+
+
+def _inactive_k1(problem, x, tol) -> list:
+    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1."""
+    out = []
+    for k, spec in enumerate(problem.specs):
+        if len(spec.obj1.functions) < 2:
+            continue
+        b1 = spec.obj1.body
+        a1 = problem.points(x, k)[0]
+        f, _ = fm.eval_functions((spec.obj1.functions[spec.k1],),
+                                 problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1)
+        if f[0] < -tol:
+            out.append(k)
+    return out
+
+
+def _below_plane_seed(spec, P):
+    """Seed (a1, a2, normal) of a body overlapping a fixed half-space: its support point along
+    -n (its deepest point below the plane) and that point's projection on the plane; None when
+    neither side is a fixed half-space or the body has no closed-form support point.
+
+    For an overlap closest_points returns a deepest common point in the algebraic sense, which
+    for a body wholly below the plane (a 100 m/s sphere at h = 0.01 s passes through it within
+    one step) is the body's centre: grad f = 0 there, the pair's normal is undefined and the
+    rows divide by zero. Eqs (15)-(18) want a1 on body 1's surface facing the plane (l2 > 0,
+    see _passed_through); the support point is that, at any depth."""
+    first, second = spec.objects
+    for plane, other, P_plane, P_other, plane_is_1 in ((second, first, P[1], P[0], False),
+                                                       (first, second, P[0], P[1], True)):
+        if not plane.fixed_halfspace:
+            continue
+        n_b, d_b = plane.funcs[0].plane()
+        n = P_plane.R @ n_b
+        d = d_b + float(n @ P_plane.p)
+        try:
+            deep = P_other.R @ other.piece.support(P_other.R.T @ (-n)) + P_other.p
+        except NotImplementedError:
+            return None
+        on_plane = deep - (float(n @ deep) - d) * n
+        return (on_plane, deep, n) if plane_is_1 else (deep, on_plane, -n)
+    return None
+
+
+def _reseed(problem, x, tol, adopt_k1=()):
+    """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
+    replace every pair's closest points and multipliers by the static solution (closest.py) at
+    the poses those velocities imply.
+
+    Newton on the KKT rows of a polytope can stall on a vertex that is no longer the deepest one
+    (a box slapping flat turns its contact point over to the far edge within one step); the
+    static problem is convex and its solver finds the right vertex, face or deepest point."""
+    z = x.copy()
+    for k, spec in enumerate(problem.specs):
+        seed = _static_seed(problem, x, spec, tol)
+        if seed is None:
+            continue
+        a1, a2, l1, l2, k1 = seed
+        if k in adopt_k1:
+            spec.k1 = k1         # the caller rebuilds the problem with it
+        elif k1 != spec.k1:
+            continue             # the layout's k1 is fixed for this problem; keep the old seed
+        sl = problem.layout.pairs[k]
+        problem.pack_points(z, k, a1, a2)
+        z[sl.l1s] = l1
+        z[sl.l2s] = l2
+    return z
+
