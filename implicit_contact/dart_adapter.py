@@ -460,37 +460,37 @@ def _spring_damper(skel):
     return k, d, q0
 
 
-def read_skeleton(rec: SkeletonRecord, body: BodyRecord | None, h: float | None = None,
-                  articulated: list = ()) -> SkeletonState:
-    """q, v, M, generalized force at l; the pose of ``body``; and for each BodyRecord in
-    ``articulated`` its pose and world Jacobian. With h, joint springs and dampers enter
-    implicitly as DART treats them (see the module docstring); their coefficients are the ones
-    read when the stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton,
-    5 % of a rolling-disc step)."""
+def read_skeleton(rec: SkeletonRecord, h: float, q_out, v_out, M_out, f_out) -> None:
+    """q, v, M and the generalized force at l of one mobile skeleton, written into the given
+    views (the stepper's world buffers). Joint springs and dampers enter implicitly as DART
+    treats them (see the module docstring); their coefficients are the ones read when the
+    stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton)."""
     skel = rec.skeleton
-    q = np.asarray(skel.getPositions(), float)
-    v = np.asarray(skel.getVelocities(), float)
-    M = np.asarray(skel.getMassMatrix(), float)
-    force = (np.asarray(skel.getForces(), float) + np.asarray(skel.getExternalForces(), float)
-             - np.asarray(skel.getCoriolisAndGravityForces(), float))
-    if h is not None:
-        sd = rec.spring_damper
-        if sd is not None:
-            k, d, q0 = sd
-            # DART's rest position is per dof in joint coordinates; for Ball/Free joints springs are
-            # on the exponential coordinates as in DART's GenericJoint
-            force = force - k * (q - q0 + h * v) - d * v
-            M = M + np.diag(h * d + h * h * k)
-    R = p = None
-    if body is not None:
-        T = body.body_node.getWorldTransform().matrix()
-        R, p = T[:3, :3].copy(), T[:3, 3].copy()
-    out = {}
-    for b in articulated:
-        T = b.body_node.getWorldTransform().matrix()
-        J = np.asarray(skel.getWorldJacobian(b.body_node, np.zeros(3)), float)
-        out[b.index] = (T[:3, :3].copy(), T[:3, 3].copy(), J)
-    return SkeletonState(q, v, M, force, R, p, out)
+    q_out[:] = skel.getPositions()
+    v_out[:] = skel.getVelocities()
+    M_out[:] = skel.getMassMatrix()
+    f_out[:] = skel.getForces()
+    f_out += skel.getExternalForces()
+    f_out -= skel.getCoriolisAndGravityForces()
+    sd = rec.spring_damper
+    if sd is not None:
+        k, d, q0 = sd
+        # DART's rest position is per dof in joint coordinates; for Ball/Free joints springs are
+        # on the exponential coordinates as in DART's GenericJoint
+        f_out -= k * (q_out - q0 + h * v_out) + d * v_out
+        M_out[np.diag_indices(rec.ndof)] += h * d + h * h * k
+
+
+def read_body(body: BodyRecord, R_out, p_out, J_out=None) -> None:
+    """A body's world pose at l (and, with J_out (6, k), DART's world Jacobian of its origin)."""
+    T = body.body_node.getWorldTransform().matrix()
+    R_out[:] = T[:3, :3]
+    p_out[:] = T[:3, 3]
+    if J_out is not None:
+        J_out[:] = body.skeleton.getWorldJacobian(body.body_node, _ORIGIN)
+
+
+_ORIGIN = np.zeros(3)
 
 
 def body_pose(body: BodyRecord):

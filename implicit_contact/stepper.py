@@ -41,6 +41,7 @@ from . import formulation as fm
 from . import ncp
 from . import recovery
 from . import shapes as shp
+from . import step_kernels as sk
 from . import step_solver
 from .broadphase import Broadphase
 from .params import Compliance, Friction
@@ -165,6 +166,7 @@ class ImplicitContactStepper:
         self._objects = self._contact_objects()
         self._broadphase = Broadphase(len(self._objects))
         self._fat = None           # (lo, hi, pairs) of the last coal query (see _candidates)
+        self._world = _World(self.scene, self._objects)
         self._masses = {b.index: b.body_node.getMass() for b in self.scene.bodies}
         self._sizes = np.array([o.piece.length_scale if math.isfinite(o.piece.length_scale) else 0.0
                                 for o in self._objects])
@@ -386,50 +388,39 @@ class ImplicitContactStepper:
                           t0 + h, 1, result.message, problem.layout.n)
 
     def _read(self, h) -> "_StepState":
-        """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_skeleton), the
+        """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_skeleton) and
+        the poses of fixed and articulated bodies, into the world buffers; then (step_kernels) the
         free-flight velocities v + h M^-1 force, every body's pose now and after a free step, and
         each piece's motion margin for the broadphase."""
-        scene = self.scene
-        states = [adapter.read_skeleton(s, scene.bodies[s.body_index] if s.body_index >= 0 else None, h,
-                                        [scene.bodies[b] for b in s.body_indices]
-                                        if s.kind == adapter.ARTICULATED else ())
-                  for s in scene.skeletons]
-        v_free = [st.v + h * np.linalg.solve(st.M, st.force) for st in states]
-        poses_now = {}
-        for b in scene.bodies:
-            if b.kind == adapter.FIXED:
-                poses_now[b.index] = self._fixed_pose(b)
-            elif b.kind == adapter.ARTICULATED:
-                R, p, _ = states[b.skeleton_index].bodies[b.index]
-                poses_now[b.index] = (R, p)
-            else:
-                st = states[b.skeleton_index]
-                poses_now[b.index] = (st.R, st.p)
-        poses_pred = {}
+        scene, w = self.scene, self._world
         for s, rec in enumerate(scene.skeletons):
-            for b in rec.body_indices:
-                poses_pred[b] = _predict_body_pose(scene.bodies[b], states[s], v_free[s], h)
-        tol = self.options.contact_tolerance
-        margins = np.full(len(self._objects), 10.0 * tol)
-        for k, o in enumerate(self._objects):
-            rec = scene.bodies[o.body]
-            if rec.skeleton_index >= 0:
-                v = v_free[rec.skeleton_index]
-                reach = o.piece.length_scale
-                if rec.kind == adapter.ARTICULATED:
-                    J = states[rec.skeleton_index].bodies[rec.index][2]
-                    lin, ang = np.linalg.norm(J[3:] @ v), np.linalg.norm(J[:3] @ v)
-                    reach += o.offset          # the piece may sit far from the body origin
-                else:
-                    lin = np.linalg.norm(v[:2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[3:6])
-                    ang = abs(v[2]) if rec.kind == adapter.PLANAR else np.linalg.norm(v[:3])
-                # the MCP's v+ differs from free flight: allow half a free step more of motion
-                margins[k] += 0.5 * h * (lin + ang * reach)
-        return _StepState(h, states, v_free, poses_now, poses_pred, margins)
-
-    def _fixed_pose(self, body):
-        """The pose of a fixed body, read from DART every step (a user may move a fixture)."""
-        return adapter.body_pose(body)
+            o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
+            adapter.read_skeleton(rec, h, w.Q[o:o + k], w.V[o:o + k], w.MB[mo:mo + k * k].reshape(k, k),
+                                  w.FB[o:o + k])
+        for b in w.read_bodies:
+            jo = w.bd_joff[b]
+            J = w.JB[jo:jo + 6 * w.bd_nv[b]].reshape(6, w.bd_nv[b]) if w.bd_kind[b] == sk.ARTICULATED else None
+            adapter.read_body(scene.bodies[b], w.R_given[b], w.p_given[b], J)
+        sk.free_flight(w.sk_nv, w.sk_voff, w.sk_moff, w.V, w.MB, w.FB, h, w.VF)
+        sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.V, 0.0, w.R_given, w.p_given, w.JB,
+                      w.R_now, w.p_now, w.th_now)
+        sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.VF, h, w.R_given, w.p_given, w.JB,
+                      w.R_pred, w.p_pred, w.th_pred)
+        sk.motion_margins(w.ob_body, w.ob_reach, w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.VF, w.JB, h,
+                          10.0 * self.options.contact_tolerance, w.margins)
+        states, v_free = [], []
+        for s, rec in enumerate(scene.skeletons):
+            o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
+            first = rec.body_index
+            bodies = {b: (w.R_now[b], w.p_now[b], w.JB[w.bd_joff[b]:w.bd_joff[b] + 6 * k].reshape(6, k))
+                      for b in rec.body_indices} if rec.kind == adapter.ARTICULATED else {}
+            states.append(adapter.SkeletonState(w.Q[o:o + k], w.V[o:o + k], w.MB[mo:mo + k * k].reshape(k, k),
+                                                w.FB[o:o + k], w.R_now[first] if first >= 0 else None,
+                                                w.p_now[first] if first >= 0 else None, bodies))
+            v_free.append(w.VF[o:o + k])
+        poses_now = {b: (w.R_now[b], w.p_now[b]) for b in range(len(scene.bodies))}
+        poses_pred = {b: (w.R_pred[b], w.p_pred[b]) for b in w.mobile}
+        return _StepState(h, states, v_free, poses_now, poses_pred, w.margins)
 
     def _candidates(self, state, keep) -> frozenset:
         """Pairs of pieces whose boxes (now and after a free step, grown by their motion margins)
@@ -440,7 +431,8 @@ class ImplicitContactStepper:
         among the fat pairs coal returned last, so coal is not asked again; the exact closed
         overlap test of broadphase.py on the fat pairs gives the same candidates as a query on
         the grown boxes themselves."""
-        lo, hi = self._boxes(state.poses_now, state.poses_pred)
+        w = self._world
+        lo, hi = self._boxes(w.R_now, w.p_now, w.R_pred, w.p_pred, w.is_mobile)
         m = state.margins[:, None]
         glo, ghi = lo - m, hi + m
         fat = self._fat
@@ -450,8 +442,8 @@ class ImplicitContactStepper:
             found = [p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)]
             self._fat = fat = (flo, fhi, np.array(found, dtype=np.int64).reshape(-1, 2))
         P = fat[2]
-        i, j = P[:, 0], P[:, 1]
-        ok = np.all((glo[i] <= ghi[j]) & (glo[j] <= ghi[i]), axis=1)
+        ok = np.empty(len(P), np.bool_)
+        sk.overlapping(P, glo, ghi, ok)
         pairs = {(int(a), int(b)) for a, b in P[ok]}
         return frozenset(pairs | set(keep))
 
@@ -466,24 +458,36 @@ class ImplicitContactStepper:
             return False
         return not (bi.kind == adapter.FIXED and bj.kind == adapter.FIXED)
 
-    def _boxes(self, poses, extra_poses=None):
-        """World AABBs (lo, hi), (n, 3), of every piece at poses, joined with its box at
-        extra_poses where given (see _Object.box)."""
-        n = len(self._objects)
-        lo = np.empty((n, 3))
-        hi = np.empty((n, 3))
-        for k, o in enumerate(self._objects):
-            l_, h_ = o.box(poses[o.body])
-            if extra_poses is not None and o.body in extra_poses:
-                l2, h2 = o.box(extra_poses[o.body])
-                l_, h_ = np.minimum(l_, l2), np.maximum(h_, h2)
-            lo[k], hi[k] = l_, h_
+    def _boxes(self, R1, p1, R2, p2, join):
+        """World AABBs (lo, hi), (n, 3), of every piece at poses (R1, p1), joined with its box at
+        (R2, p2) where join[body] (step_kernels.piece_boxes); unbounded pieces: their exact box."""
+        w = self._world
+        for k in w.unbounded:
+            o = self._objects[k]
+            lo, hi = o.box((R1[o.body], p1[o.body]))
+            if join[o.body]:
+                l2, h2 = o.box((R2[o.body], p2[o.body]))
+                lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
+            w.exact_lo[k], w.exact_hi[k] = lo, hi
+        lo, hi = np.empty((len(self._objects), 3)), np.empty((len(self._objects), 3))
+        sk.piece_boxes(w.ob_body, w.ob_bounded, w.ob_dim, w.ob_centre, w.ob_half, w.exact_lo, w.exact_hi,
+                       R1, p1, R2, p2, join, lo, hi)
         return lo, hi
 
     def _pairs_at(self, poses, margins, extra_poses=None):
-        """Candidate pairs from a direct broadphase query (the start-of-run overlap check and the
-        end-of-step check of _uncovered; steps use _candidates)."""
-        lo, hi = self._boxes(poses, extra_poses)
+        """Candidate pairs from a direct broadphase query at poses (body -> (R, p)), joined with
+        extra_poses where given (the start-of-run overlap check and the end-of-step check of
+        _uncovered; steps use _candidates)."""
+        nb = len(self.scene.bodies)
+        R1, p1 = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
+        R2, p2 = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
+        join = np.zeros(nb, np.bool_)
+        for b in range(nb):
+            R1[b], p1[b] = poses[b]
+            if extra_poses is not None and b in extra_poses:
+                R2[b], p2[b] = extra_poses[b]
+                join[b] = True
+        lo, hi = self._boxes(R1, p1, R2, p2, join)
         return [p for p in self._broadphase.candidates(lo, hi, margins) if self._allowed(*p)]
 
     def _free_step(self, state, far, keep, t0) -> StepReport:
@@ -975,6 +979,56 @@ class ImplicitContactStepper:
 # ---------------------------------------------------------------------------------------------
 # helpers
 # ---------------------------------------------------------------------------------------------
+class _World:
+    """The world tables of step_kernels (skeletons, bodies, pieces) and the buffers each step
+    fills (one set per stepper: a step's re-solve with more pairs re-reads the same state)."""
+
+    def __init__(self, scene, objects):
+        kinds = {adapter.FIXED: sk.FIXED, adapter.FREE: sk.FREE, adapter.PLANAR: sk.PLANAR,
+                 adapter.ARTICULATED: sk.ARTICULATED}
+        nv = [s.ndof for s in scene.skeletons]
+        self.sk_nv = np.array(nv, np.int64)
+        self.sk_voff = np.cumsum([0] + nv)[:-1].astype(np.int64)
+        self.sk_moff = np.cumsum([0] + [k * k for k in nv])[:-1].astype(np.int64)
+        nvw, nM = sum(nv), sum(k * k for k in nv)
+        bodies = scene.bodies
+        nb = len(bodies)
+        self.bd_kind = np.array([kinds[b.kind] for b in bodies], np.int64)
+        self.bd_sk = np.array([b.skeleton_index for b in bodies], np.int64)
+        self.bd_nv = np.array([nv[b.skeleton_index] if b.skeleton_index >= 0 else 0 for b in bodies], np.int64)
+        joff, at = [], 0
+        for b in bodies:
+            joff.append(at)
+            if b.kind == adapter.ARTICULATED:
+                at += 6 * nv[b.skeleton_index]
+        self.bd_joff = np.array(joff, np.int64)
+        self.read_bodies = [b.index for b in bodies if b.kind in (adapter.FIXED, adapter.ARTICULATED)]
+        self.mobile = [b.index for b in bodies if b.kind != adapter.FIXED]
+        self.is_mobile = np.array([b.kind != adapter.FIXED for b in bodies], np.bool_)
+        no = len(objects)
+        self.ob_body = np.array([o.body for o in objects], np.int64)
+        self.ob_bounded = np.array([o.local_box is not None for o in objects], np.bool_)
+        self.ob_dim = np.array([o.piece.dim for o in objects], np.int64)
+        self.ob_centre = np.array([o.local_box[0] if o.local_box is not None else np.zeros(3) for o in objects]).reshape(no, 3)
+        self.ob_half = np.array([o.local_box[1] if o.local_box is not None else np.zeros(3) for o in objects]).reshape(no, 3)
+        reach = []
+        for o in objects:
+            r = o.piece.length_scale
+            if bodies[o.body].kind == adapter.ARTICULATED:
+                r += o.offset          # the piece may sit far from the body origin
+            reach.append(r)
+        self.ob_reach = np.array(reach, float)
+        self.unbounded = [k for k, o in enumerate(objects) if o.local_box is None]
+        self.exact_lo, self.exact_hi = np.zeros((no, 3)), np.zeros((no, 3))
+        self.Q, self.V, self.FB, self.VF = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
+        self.MB = np.zeros(max(nM, 1))
+        self.JB = np.zeros(max(at, 1))
+        self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
+        self.R_now, self.p_now, self.th_now = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
+        self.R_pred, self.p_pred, self.th_pred = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
+        self.margins = np.zeros(no)
+
+
 @dataclass
 class _StepState:
     """DART's state at the start of one step of h (ImplicitContactStepper._read)."""
@@ -987,10 +1041,11 @@ class _StepState:
 
 
 class _Object:
-    """One convex piece of one body, with a cheap world box for the broadphase: the exact AABB
-    for unbounded pieces and fixed bodies (recomputed only when the pose changes), and for moving
-    bounded pieces the world AABB of the piece's rotated body-frame box, centre R c + p and half
-    extents |R| e (tight for a disc or an axis-aligned body, at most sqrt(3) wider otherwise)."""
+    """One convex piece of one body. Its world box for the broadphase (step_kernels.piece_boxes):
+    for a bounded piece the world AABB of its rotated body-frame box ``local_box`` (centre,
+    half extents), centre R c + p and half extents |R| e (tight for a disc or an axis-aligned
+    body, at most sqrt(3) wider otherwise); for an unbounded piece its exact AABB (``box``,
+    recomputed only when the pose changes)."""
 
     def __init__(self, body, piece, funcs, fixed_halfspace, friction, label, compliance=None):
         self.body, self.piece, self.funcs = body, piece, funcs
@@ -998,7 +1053,7 @@ class _Object:
         self.compliance = compliance
         self.key = label
         d = piece.dim
-        self._sphere = None
+        self.local_box = None
         self.offset = 0.0          # distance of its body-frame box centre from the body origin
         if piece.bounded:
             lo, hi = (np.asarray(v, float) for v in piece.aabb(np.eye(d), np.zeros(d)))
@@ -1006,25 +1061,19 @@ class _Object:
             centre[:d] = 0.5 * (lo + hi)
             half = np.zeros(3)
             half[:d] = 0.5 * (hi - lo)
-            self._sphere = (centre, half)
+            self.local_box = (centre, half)
             self.offset = float(np.linalg.norm(centre))
         # the farthest any point of the piece is from its body's origin (None: unbounded)
-        self.radius = self.offset + float(np.linalg.norm(self._sphere[1])) if piece.bounded else None
+        self.radius = self.offset + float(np.linalg.norm(self.local_box[1])) if piece.bounded else None
         self._last = None
 
     def box(self, pose):
+        """The exact world AABB of an unbounded piece at pose (R, p)."""
         R, p = pose
-        if self._sphere is not None:
-            centre, half = self._sphere
-            c = R @ centre + p
-            e = np.abs(R) @ half
-            if self.piece.dim == 2:
-                e[2] = 0.0
-            return c - e, c + e
         if self._last is not None and np.array_equal(self._last[0], R) and np.array_equal(self._last[1], p):
             return self._last[2]
         out = _aabb3(self.piece, pose)
-        self._last = (R.copy(), p.copy(), out)
+        self._last = (np.array(R), np.array(p), out)
         return out
 
 
