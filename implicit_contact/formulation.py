@@ -121,7 +121,7 @@ class BodyKinematics:
             jac = np.asarray(self.jacobian, float)
             if jac.shape != (6, self.ndof):
                 raise ValueError(f"an articulated body needs a 6 x {self.ndof} Jacobian, got {jac.shape}")
-        bi = np.array([_KIND_CODE[self.kind], vcol, self.ndof, 0], np.int64)
+        bi = np.array([_KIND_CODE[self.kind], vcol, self.ndof, 0, int(self.kind == ARTICULATED)], np.int64)
         bf = np.zeros(rb.NBF)
         bf[rb.B_R0:rb.B_R0 + 9] = np.asarray(R, float).ravel()
         bf[rb.B_P0:rb.B_P0 + 3] = p
@@ -225,7 +225,7 @@ class StepProblem:
         at = 0
         for b, kin in enumerate(bodies):
             vcol = int(kin.vindex[0]) if kin.vindex is not None and len(kin.vindex) else 0
-            body_i[b] = [_KIND_CODE[kin.kind], vcol, kin.ndof, at]
+            body_i[b] = [_KIND_CODE[kin.kind], vcol, kin.ndof, at, int(kin.kind == ARTICULATED)]
             if kin.kind in (FREE, ARTICULATED):
                 at += 6 * kin.ndof
         body_jac = np.zeros(max(at, 1))

@@ -44,6 +44,7 @@ from . import shapes as shp
 from . import step_kernels as sk
 from . import step_solver
 from .broadphase import Broadphase
+from .memory import PairMemory, warm_start as memory_warm_start
 from .params import Compliance, Friction
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
@@ -173,7 +174,7 @@ class ImplicitContactStepper:
         self._gravity_norm = 1.0
         self._pair_friction = {}
         self._pair_compliance = {}
-        self._last = {}            # pair key -> dict of the last solution (warm start)
+        self._last = PairMemory()  # the last step's pairs (warm starts; memory.py)
         self._supports = {}        # body index -> SupportFriction (set_support_friction)
         self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
@@ -249,7 +250,7 @@ class ImplicitContactStepper:
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
         self._check_state_finite()
         snap = adapter.snapshot(self.world)
-        saved = (dict(self._last), dict(self._last_support), dict(self._far))
+        saved = (self._last, dict(self._last_support), dict(self._far))
 
         def attempt(n):
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
@@ -258,7 +259,7 @@ class ImplicitContactStepper:
                 adapter.finish_step(self.world, h)
             else:
                 adapter.restore(self.world, snap)
-                self._last, self._last_support, self._far = (dict(d) for d in saved)
+                self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
             return report
 
         self._retrying = False
@@ -496,7 +497,7 @@ class ImplicitContactStepper:
         if violated:
             return self._one_step(state.h, keep | violated)
         self._commit(state, state.v_free)
-        self._last = {}
+        self._last = PairMemory()
         self._last_support = {}
         self._far = far_next
         return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + state.h, 1, "no pair near", 0)
@@ -545,27 +546,10 @@ class ImplicitContactStepper:
         return problem, result
 
     def _solution(self, problem, z, specs):
-        """(the contact reports, the warm-start records of the next step) of a solved step."""
-        contacts = []
-        new_last = {}
-        layout = problem.layout
-        for k, spec in enumerate(specs):
-            st = problem.unpack_pair(z, k)
-            contacts.append(self._contact_report(problem, z, k, spec, st))
-            sl = layout.pairs[k]
-            new_last[spec.key] = {"a1": st.a1, "a2": st.a2, "l1": st.l1, "l2": st.l2, "p_n": st.p_n,
-                                  "p_t": st.p_t, "p_r": st.p_r, "sigma": st.sigma, "k1": spec.k1,
-                                  "axis": spec.tangent_axis, "normal": st.normal,
-                                  "dbar": float(z[sl.dbar]) if sl.dbar >= 0 else 0.0,
-                                  "deflection": float(z[sl.dn]) if sl.dn >= 0 else 0.0,
-                                  "deflection_prev": spec.delta_prev,
-                                  "p_nr": spec.impulse_scale * float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0,
-                                  "k": spec.compliance.k_n if spec.compliance is not None else 0.0,
-                                  # Euclidean distance of the separated pieces (their closest points
-                                  # solve eqs 15-18 exactly); gap is body 1's function at a2, an
-                                  # algebraic distance that may exceed it
-                                  "distance": float(np.linalg.norm(st.a2 - st.a1)) if st.gap > 0.0 else 0.0}
-        return contacts, new_last
+        """(the contact reports, the memory of the next step) of a solved step."""
+        contacts = [self._contact_report(problem, z, k, spec, problem.unpack_pair(z, k))
+                    for k, spec in enumerate(specs)]
+        return contacts, PairMemory(problem, z, specs)
 
     def _commit(self, state, velocities):
         """Write v+ and let DART integrate q+ = q (+) h v+ for every mobile skeleton."""
@@ -838,84 +822,57 @@ class ImplicitContactStepper:
         return (oi, oj) if known == oi.key else (oj, oi)
 
     def _warm_start(self, problem, att, state):
-        """z0 from the last step's solution (closest points carried along, impulses kept); cold
-        (att.cold): closest points the same way, but free-flight velocities and zero impulses."""
-        specs, involved, cold = att.specs, att.involved, att.cold
-        states, v_free, poses_now, h = state.states, state.v_free, state.poses_now, state.h
+        """z0 from the last step's solution (memory.warm_start: closest points carried along,
+        impulses kept); cold (att.cold): closest points the same way, but free-flight velocities
+        and zero impulses. New pairs start from static closest points with zero impulses."""
+        specs = att.specs
         lay = problem.layout
+        t = problem.tables
+        memory = self._last
+        mem = np.array([memory.index(spec.key) for spec in specs], np.int64)
+        seeds = {k: self._seed_pair(problem, specs[k], state) for k in range(len(specs)) if mem[k] < 0}
+        problem._sync()
         z = np.zeros(lay.n)
-        touching_skeletons = set()
-        for spec in specs:
-            last = self._last.get(spec.key)
-            if last is not None and last["p_n"] > 0.0:
-                for o in spec.objects:
-                    s = self.scene.bodies[o.body].skeleton_index
-                    if s >= 0:
-                        touching_skeletons.add(s)
-        for k, s in enumerate(involved):
-            z[lay.v_index[k]] = states[s].v if (s in touching_skeletons and not cold) else v_free[s]
-        for k, spec in enumerate(specs):
+        v_free = np.zeros(lay.n)
+        for k, s in enumerate(att.involved):
+            v_free[lay.v_index[k]] = state.v_free[s]
+        if len(memory):
+            memory_warm_start(t.pair_i, t.pair_f, t.body_i, t.body_f, t.body_jac, t.sk_i, t.v0, v_free, mem,
+                              memory.pair_i, memory.pair_f, memory.z, memory.rep, att.cold, state.h, z)
+        else:
+            memory_warm_start(t.pair_i, t.pair_f, t.body_i, t.body_f, t.body_jac, t.sk_i, t.v0, v_free, mem,
+                              t.pair_i[:0], t.pair_f[:0], z, problem._rep[:0], att.cold, state.h, z)
+        for k, (a1, a2, l1, l2) in seeds.items():
             sl = lay.pairs[k]
-            first, second = spec.objects
-            b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
-            d = spec.dim
-            last = self._last.get(spec.key)
-            if last is not None:
-                s1, s2 = _contact_shift(b1, b2, states, h, last["a2"] - last["a1"], d, last["a1"], last["a2"])
-                a1, a2 = last["a1"] + s1, last["a2"] + s2
-                l1, l2 = last["l1"], last["l2"]
-                p_n, p_t, p_r, sigma = last["p_n"], last["p_t"], last["p_r"], last["sigma"]
-                if d == 3 and last["axis"] is not None and spec.tangent_axis is not None \
-                        and not np.array_equal(last["axis"], spec.tangent_axis):
-                    n = last["normal"]
-                    old = fm._tangent_basis(n, last["axis"])[1:]
-                    new = fm._tangent_basis(n, spec.tangent_axis)[1:]
-                    p_t = new @ (old.T @ p_t)
-                if cold:
-                    p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
-            else:
-                res = _closest_seed(first.piece, _pose_dim(poses_now[first.body], d),
-                                    second.piece, _pose_dim(poses_now[second.body], d))
-                a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
-                normal = np.asarray(res.normal, float)
-                # poses at l (zero velocity), where the closest points were computed
-                P1, P2 = (problem.bodies[o.body].pose(np.zeros(problem.bodies[o.body].ndof))
-                          for o in (spec.obj1, spec.obj2))
-                if res.distance <= self.options.contact_tolerance:
-                    a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal, self.options.contact_tolerance)
-                l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
-                spec.k1 = k1
-                p_n, p_t, p_r, sigma = 0.0, np.zeros(d - 1), 0.0, 0.0
-            if spec.tangent_axis is None and d == 3:
-                n0 = normal if last is None else last["normal"]
-                spec.tangent_axis = fm._least_aligned_axis(n0 / np.linalg.norm(n0))
             problem.pack_points(z, k, a1, a2)
             z[sl.l1] = l1
             z[sl.l2] = l2
-            z[sl.p_n] = p_n / spec.impulse_scale
-            if sl.sigma >= 0:
-                if len(p_t) == len(sl.p_t):
-                    z[sl.p_t] = p_t / spec.impulse_scale
-                if sl.p_r >= 0:
-                    z[sl.p_r] = p_r / (spec.impulse_scale * spec.friction.e_r)
-                z[sl.sigma] = sigma
-            if sl.dbar >= 0 and last is not None:
-                # the layer keeps deforming at its last rate; the spring follows (eq 49)
-                rate = last["deflection"] - last["deflection_prev"]
-                dn = last["deflection"] + rate
-                z[sl.dbar], z[sl.dn] = last["dbar"] + rate, dn
-                comp = spec.compliance
-                stiff = 0.5 * (dn + spec.delta_prev) if comp.scheme == "midpoint" else dn
-                spring = h * comp.k_n * stiff + comp.c_n * (dn - spec.delta_prev)
-                if sl.p_nr >= 0:
-                    z[sl.p_nr] = last["p_nr"] / spec.impulse_scale
-                if last["p_n"] > 0.0 and spring > 0.0 and not cold:
-                    z[sl.p_n] = spring / spec.impulse_scale + z[sl.p_nr] * (sl.p_nr >= 0)
         for sp, ss in zip(problem.supports, lay.supports):
             last = self._last_support.get(sp.key)
-            if last is not None and not cold and len(last[0]) == ss.y.stop - ss.y.start:
+            if last is not None and not att.cold and len(last[0]) == ss.y.stop - ss.y.start:
                 z[ss.y], z[ss.sigma] = last[0], last[1]
         return z
+
+    def _seed_pair(self, problem, spec, state):
+        """A new pair's start (a1, a2, l1, l2): static closest points at l (the central touch point
+        if touching) and their multipliers; sets the pair's k1, and its tangent axis from the
+        normal."""
+        first, second = spec.objects
+        d = spec.dim
+        poses_now = state.poses_now
+        res = _closest_seed(first.piece, _pose_dim(poses_now[first.body], d),
+                            second.piece, _pose_dim(poses_now[second.body], d))
+        a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+        normal = np.asarray(res.normal, float)
+        # poses at l (zero velocity), where the closest points were computed
+        P1, P2 = (problem.bodies[o.body].pose(np.zeros(problem.bodies[o.body].ndof)) for o in (spec.obj1, spec.obj2))
+        if res.distance <= self.options.contact_tolerance:
+            a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal, self.options.contact_tolerance)
+        l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
+        spec.k1 = k1
+        if spec.tangent_axis is None and d == 3:
+            spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
+        return a1, a2, l1, l2
 
     def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
         first, second = spec.objects

@@ -34,9 +34,9 @@ from .._jit import kernel
 
 FIXED, MOVING, PLANAR = 0, 1, 2
 
-# body_i columns
-B_KIND, B_VCOL, B_NV, B_JAC = 0, 1, 2, 3
-NBI = 4
+# body_i columns (B_ART: a body of an articulated skeleton, moving by its Jacobian; kind MOVING)
+B_KIND, B_VCOL, B_NV, B_JAC, B_ART = 0, 1, 2, 3, 4
+NBI = 5
 # body_f columns
 B_R0, B_P0, B_THETA0, B_H = 0, 9, 12, 13
 NBF = 14
