@@ -43,6 +43,7 @@ from .rows import bodies as rb
 from .rows import contact as rc
 from .rows import dynamics as rd
 from .rows import support as rs
+from .rows import tables as rt
 from .rows.assemble import assemble
 
 SPARSE_MIN_UNKNOWNS = 250   # measured crossover of the dense and the sparse J + LU (comparisons/bench_many_bodies.py)
@@ -187,6 +188,11 @@ class _Tables:
     scale: np.ndarray
     kmax: int
     lmax: int
+    sup_body: np.ndarray       # support blocks: their body, centre of pressure (body frame), e_r, mu N
+    sup_c: np.ndarray
+    sup_er: np.ndarray
+    sup_mun: np.ndarray
+    body_dim: np.ndarray
 
 
 class StepProblem:
@@ -198,7 +204,7 @@ class StepProblem:
     problem, from its warm start)."""
 
     def __init__(self, h: float, skeletons: list, bodies: list, specs: list, layout: Layout,
-                 supports: tuple = (), jacobian: str = "auto"):
+                 supports: tuple = (), jacobian: str = "auto", source=None):
         if jacobian not in ("auto", "dense", "sparse"):
             raise ValueError(f"jacobian must be 'auto', 'dense' or 'sparse', got {jacobian!r}")
         self._sparse = jacobian == "sparse" or (jacobian == "auto" and layout.n >= SPARSE_MIN_UNKNOWNS)
@@ -213,7 +219,7 @@ class StepProblem:
         nb = len(bodies)
         self._work = (np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)),
                       np.zeros((nb, 12, t.kmax)), np.zeros(t.lmax), np.zeros((t.lmax, t.lmax)))
-        self.refresh(h, skeletons, bodies, specs, supports)
+        self.refresh(h, skeletons, bodies, specs, supports, source)
 
     # -- the tables ---------------------------------------------------------------------------
     def _build_structure(self, bodies, specs, supports, n_skeletons) -> _Tables:
@@ -270,11 +276,17 @@ class StepProblem:
             sk_i[s] = [int(vidx[0]) if k else 0, k, off]
             off += k * k
         sup_i = np.zeros((len(supports), rs.NSI), np.int64)
+        sup_body = np.zeros(len(supports), np.int64)
+        sup_c, sup_er, sup_mun = np.zeros((len(supports), 2)), np.zeros(len(supports)), np.zeros(len(supports))
         for s, (sp, ss) in enumerate(zip(supports, layout.supports)):
             kin = bodies[sp.body]
             if kin.kind != PLANAR or kin.vindex is None:
                 raise ValueError("support friction needs a moving planar body")
             sup_i[s] = [int(kin.vindex[0]), ss.y.start, 3 if sp.friction.torsion else 2, ss.sigma]
+            sup_body[s] = sp.body
+            sup_c[s], sup_er[s] = sp.friction.centre, sp.friction.e_r
+            sup_mun[s] = sp.friction.mu * sp.friction.normal_force
+        self._pos_rows = np.asarray(_position_rows(layout), np.int64)
         # plans' local indices: skeletons, pairs, supports
         locs = [np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]) for s in range(len(sk_i))]
         for k, spec in enumerate(specs):
@@ -289,11 +301,16 @@ class StepProblem:
         lmax = max([1] + [len(x) for x in locs])
         return _Tables(body_i, np.zeros((nb, rb.NBF)), body_jac, fpar, sk_i, np.zeros(max(off, 1)), np.zeros(n),
                        np.zeros(n), pair_i, np.zeros((len(specs), rc.NPF)), sup_i,
-                       np.zeros((len(supports), rs.NSF)), loc_idx, loc_off, np.ones(n), kmax, lmax)
+                       np.zeros((len(supports), rs.NSF)), loc_idx, loc_off, np.ones(n), kmax, lmax,
+                       sup_body, sup_c, sup_er, sup_mun, np.array([kin.dim for kin in bodies], np.int64))
 
-    def refresh(self, h, skeletons, bodies, specs, supports=()):
-        """Fill the tables' values for a step at l (poses, mass matrices, forces, pair parameters)
-        on the structure built for this layout: the same bodies, skeletons and pairs, in order."""
+    def refresh(self, h, skeletons, bodies, specs, supports=(), source=None):
+        """Fill the tables' values for a step at l on the structure built for this layout (the
+        same bodies, skeletons and pairs, in order): body poses, Jacobians, mass matrices and
+        forces by rows/tables.fill_state from ``source`` (the stepper's world buffers: src,
+        R_src, p_src, th_src, J_src, J_at, h_body, sk_src, src_voff, src_moff, V_src, MB_src,
+        FB_src), or, when source is None, from the bodies' and skeletons' own arrays; the pairs'
+        parameters from their specs."""
         t = self.tables
         layout = self.layout
         if len(bodies) != len(t.body_i) or len(specs) != len(t.pair_i) or len(skeletons) != len(t.sk_i):
@@ -302,20 +319,10 @@ class StepProblem:
         self.skeletons, self.bodies, self.specs = skeletons, bodies, specs
         self.supports = tuple(supports)
         self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
-        for b, kin in enumerate(bodies):
-            _, bf, jac = kin.tables(0)
-            t.body_f[b] = bf
-            if kin.kind == ARTICULATED:
-                at = t.body_i[b, rb.B_JAC]
-                t.body_jac[at:at + 6 * kin.ndof] = np.asarray(jac, float).ravel()
-        for s, sk in enumerate(skeletons):
-            col, k, off = t.sk_i[s]
-            M = np.asarray(sk.M, float)
-            t.sk_M[off:off + k * k] = M.ravel()
-            t.v0[col:col + k] = sk.v
-            t.hforce[col:col + k] = h * np.asarray(sk.force, float)
-            t.scale[col:col + k] = 1.0 / np.maximum(np.diag(M), 1e-300)
-        t.scale[_position_rows(layout)] = 1.0 / h
+        if source is None:
+            source = _source_of(bodies, skeletons)
+        rt.fill_state(*source, h, t.body_dim, t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce,
+                      t.scale, self._pos_rows, t.sup_body, t.sup_c, t.sup_er, t.sup_mun, t.sup_f)
         self._reduced = []
         for k, spec in enumerate(specs):
             r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None
@@ -340,14 +347,6 @@ class StepProblem:
                 pf[rc.Q_K], pf[rc.Q_C], pf[rc.Q_DMAX] = comp.k_n, comp.c_n, comp.delta_max
                 pf[rc.Q_DPREV] = spec.delta_prev
             pf[rc.Q_H] = h
-        for s, sp in enumerate(self.supports):
-            kin = bodies[sp.body]
-            fr = sp.friction
-            R = np.asarray(kin.R0, float)[:2, :2]
-            r = R @ np.asarray(fr.centre, float)
-            E = np.array([[1.0, 0.0, -r[1]], [0.0, 1.0, r[0]], [0.0, 0.0, fr.e_r]])
-            t.sup_f[s, rs.S_E:rs.S_E + 9] = E.ravel()
-            t.sup_f[s, rs.S_SCALE] = fr.mu * fr.normal_force * h
         self._synced = [(None, None)] * len(specs)
         self._key_f = self._key_j = None
         self._F = self._J = None
@@ -509,6 +508,39 @@ class StepProblem:
         vcol, ycol, ny, _ = t.sup_i[s]
         E = t.sup_f[s, rs.S_E:rs.S_E + 9].reshape(3, 3)[:ny]
         return t.sup_f[s, rs.S_SCALE] * (E.T @ z[ycol:ycol + ny])
+
+
+def _source_of(bodies, skeletons):
+    """rows/tables.fill_state's source arrays made from BodyKinematics and SkeletonBlocks."""
+    nb = len(bodies)
+    R, p, th = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
+    J_at = np.zeros(nb, np.int64)
+    jacs, at = [], 0
+    h_body = np.zeros(nb)
+    for b, kin in enumerate(bodies):
+        R[b] = np.asarray(kin.R0, float)
+        if kin.kind == PLANAR:
+            q0 = np.asarray(kin.q0, float)
+            p[b, :2], th[b] = q0[:2], q0[2]
+        else:
+            p[b] = np.asarray(kin.p0, float)
+        h_body[b] = kin.h
+        if kin.kind == ARTICULATED:
+            jac = np.asarray(kin.jacobian, float)
+            if jac.shape != (6, kin.ndof):
+                raise ValueError(f"an articulated body needs a 6 x {kin.ndof} Jacobian, got {jac.shape}")
+            J_at[b] = at
+            jacs.append(jac.ravel())
+            at += jac.size
+    J = np.concatenate(jacs) if jacs else np.zeros(1)
+    ks = [len(np.asarray(sk.v)) for sk in skeletons]
+    voff = np.cumsum([0] + ks)[:-1].astype(np.int64)
+    moff = np.cumsum([0] + [k * k for k in ks])[:-1].astype(np.int64)
+    V = np.concatenate([np.asarray(sk.v, float) for sk in skeletons]) if skeletons else np.zeros(1)
+    MB = np.concatenate([np.asarray(sk.M, float).ravel() for sk in skeletons]) if skeletons else np.zeros(1)
+    FB = np.concatenate([np.asarray(sk.force, float) for sk in skeletons]) if skeletons else np.zeros(1)
+    return (np.arange(nb, dtype=np.int64), R, p, th, J, J_at, h_body, np.arange(len(skeletons), dtype=np.int64),
+            voff, moff, V, MB, FB)
 
 
 _EMPTY = np.zeros(0)

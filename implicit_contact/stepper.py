@@ -409,6 +409,10 @@ class ImplicitContactStepper:
                       w.R_pred, w.p_pred, w.th_pred)
         sk.motion_margins(w.ob_body, w.ob_reach, w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.VF, w.JB, h,
                           10.0 * self.options.contact_tolerance, w.margins)
+        if self._trapezoidal_skeletons():
+            # the "midpoint" quasi-rigid scheme: poses half a step on at v (see _problem)
+            sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.V, 0.5 * h, w.R_given, w.p_given,
+                          w.JB, w.R_half, w.p_half, w.th_half)
         states, v_free = [], []
         for s, rec in enumerate(scene.skeletons):
             o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
@@ -631,13 +635,18 @@ class ImplicitContactStepper:
                 break
         if not moved:
             return frozenset()
+        w = self._world
         midpoint = self._trapezoidal_skeletons()
-        poses_end = {}
-        for s, rec in enumerate(scene.skeletons):
-            v_end = 0.5 * (states[s].v + v_solved[s]) if s in midpoint else v_solved[s]
-            for b in rec.body_indices:
-                poses_end[b] = _predict_body_pose(scene.bodies[b], states[s], v_end, h)
-        after = self._pairs_at(state.poses_now, np.full(len(self._objects), 10.0 * tol), extra_poses=poses_end)
+        V_end = np.empty_like(w.V)
+        for s in range(len(scene.skeletons)):
+            o, k = w.sk_voff[s], w.sk_nv[s]
+            V_end[o:o + k] = 0.5 * (states[s].v + v_solved[s]) if s in midpoint else v_solved[s]
+        nb = len(scene.bodies)
+        R_end, p_end, th_end = np.empty((nb, 3, 3)), np.empty((nb, 3)), np.empty(nb)
+        sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, V_end, h, w.R_given, w.p_given, w.JB,
+                      R_end, p_end, th_end)
+        lo, hi = self._boxes(w.R_now, w.p_now, R_end, p_end, w.is_mobile)
+        after = [p for p in self._broadphase.candidates(lo, hi, 10.0 * tol) if self._allowed(*p)]
         return frozenset(p for p in after if p not in candidates)
 
     def _known_gap(self, i, j):
@@ -688,9 +697,11 @@ class ImplicitContactStepper:
                                  0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
 
     def _problem(self, state, att):
-        """The step problem of the attempt's specs (kept by layout signature and bodies, refreshed)."""
-        scene = self.scene
-        h, states, poses_now = state.h, state.states, state.poses_now
+        """The step problem of the attempt's specs: kept by layout signature, bodies and h, with
+        its bodies' kinematics and skeleton blocks (views of the world buffers), and refreshed
+        from the world buffers (rows/tables.fill_state) and the specs."""
+        scene, w = self.scene, self._world
+        h = state.h
         nv, specs, involved, sk_pos = att.nv, att.specs, att.involved, att.sk_pos
         body_ids, body_pos, supports = att.body_ids, att.body_pos, att.supports
         signature = (tuple(nv), tuple((sp.key, sp.with_friction, sp.friction.torsion, sp.dim,
@@ -698,54 +709,42 @@ class ImplicitContactStepper:
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
                                       for sp in specs),
                      tuple((sp.body, sp.friction.torsion) for sp in supports))
-        key = (signature, tuple(body_ids), tuple((b, scene.bodies[b].kind) for b in body_ids))
-        problem = self._problems.get(key)
-        layout = problem.layout if problem is not None else None
-        if layout is None:
+        key = (signature, tuple(body_ids), h)
+        cached = self._problems.get(key)
+        if cached is None:
             if len(self._problems) > 256:       # scenes whose pairs keep changing
                 self._problems.clear()
             layout = fm.build_layout(nv, specs, supports)
-        kins = []
-        midpoint = self._trapezoidal_skeletons()
-        for b in body_ids:
-            rec = scene.bodies[b]
-            if rec.kind == adapter.FIXED:
-                R, p = poses_now[b]
-                kins.append(fm.BodyKinematics(fm.FIXED, rec.dim, R, p, None, h, None))
-            elif rec.kind == adapter.ARTICULATED:
-                # the body's pose moves with its twist J v (J: DART's world Jacobian at l); the
-                # trapezoidal scheme starts from the pose after half a step at v
-                s = rec.skeleton_index
-                st = states[s]
-                R, p, J = st.bodies[b]
-                hk = h
-                if s in midpoint:
-                    R, p = _predict_body_pose(rec, st, st.v, h / 2)
-                    hk = h / 2
-                kins.append(fm.BodyKinematics(fm.ARTICULATED, 3, R, p, None, hk, layout.v_index[sk_pos[s]],
-                                              rec.body_node.getMass(), J))
-            elif rec.skeleton_index in midpoint:
-                # trapezoidal positions, q+ = q + h (v + v+)/2: the pose after half a step at v,
-                # then half a step at the unknown v+
-                s = rec.skeleton_index
-                st = states[s]
-                R_half, p_half = _predict_pose(rec.kind, st, st.v, h / 2)
-                q_half = st.q + 0.5 * h * st.v if rec.kind == adapter.PLANAR else None
-                kins.append(fm.BodyKinematics(rec.kind, rec.dim, R_half, p_half, q_half, h / 2,
-                                              layout.v_index[sk_pos[s]], rec.body_node.getMass()))
-            else:
-                s = rec.skeleton_index
-                st = states[s]
-                q0 = st.q.copy() if rec.kind == adapter.PLANAR else None
-                kins.append(fm.BodyKinematics(rec.kind, rec.dim, st.R, st.p, q0, h,
-                                              layout.v_index[sk_pos[s]], rec.body_node.getMass()))
-        blocks = [fm.SkeletonBlock(states[s].M, states[s].v, states[s].force,
-                                   next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
-                  for s in involved]
-        if problem is None:
-            problem = self._problems[key] = fm.StepProblem(h, blocks, kins, specs, layout, supports)
-        else:
-            problem.refresh(h, blocks, kins, specs, supports)
+            midpoint = bool(self._trapezoidal_skeletons())
+            R_src, p_src, th_src = (w.R_half, w.p_half, w.th_half) if midpoint else (w.R_now, w.p_now, w.th_now)
+            kins = []
+            for b in body_ids:
+                rec = scene.bodies[b]
+                # the trapezoidal scheme starts from the pose after half a step at v (rows/tables.py)
+                hk = h / 2 if (midpoint and rec.kind != adapter.FIXED) else h
+                vindex = layout.v_index[sk_pos[rec.skeleton_index]] if rec.kind != adapter.FIXED else None
+                q0 = np.array([p_src[b, 0], p_src[b, 1], th_src[b]]) if rec.kind == adapter.PLANAR else None
+                J = None
+                if rec.kind == adapter.ARTICULATED:
+                    jo, k = w.bd_joff[b], w.bd_nv[b]
+                    J = w.JB[jo:jo + 6 * k].reshape(6, k)
+                kins.append(fm.BodyKinematics(rec.kind, rec.dim, R_src[b], p_src[b], q0, hk, vindex,
+                                              self._masses[b], J))
+            blocks = [fm.SkeletonBlock(state.states[s].M, state.states[s].v, state.states[s].force,
+                                       next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
+                      for s in involved]
+            ids = np.asarray(body_ids, np.int64)
+            source = (ids, R_src, p_src, th_src, w.JB, w.bd_joff[ids],
+                      np.array([kin.h for kin in kins]), np.asarray(involved, np.int64), w.sk_voff, w.sk_moff,
+                      w.V, w.MB, w.FB)
+            problem = fm.StepProblem(h, blocks, kins, specs, layout, supports, source=source)
+            cached = self._problems[key] = (problem, kins, blocks, source)
+            return problem
+        problem, kins, blocks, source = cached
+        for kin, b in zip(kins, body_ids):
+            if kin.kind == adapter.PLANAR:       # q0 is a copy (the planar angle is not in a buffer row)
+                kin.q0[:] = (source[2][b, 0], source[2][b, 1], source[3][b])
+        problem.refresh(h, blocks, kins, specs, supports, source)
         return problem
 
     def _pair_spec(self, i, j, h, body_pos, states):
@@ -983,6 +982,7 @@ class _World:
         self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
         self.R_now, self.p_now, self.th_now = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.R_pred, self.p_pred, self.th_pred = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
+        self.R_half, self.p_half, self.th_half = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.margins = np.zeros(no)
 
 
@@ -1057,23 +1057,6 @@ def _aabb3(piece, pose):
     if d == 2:
         lo, hi = np.append(lo, 0.0), np.append(hi, 0.0)
     return lo, hi
-
-
-def _predict_body_pose(body, st, v, h):
-    """A body's pose after a step h at skeleton velocity v, as the formulation models it."""
-    if body.kind == adapter.ARTICULATED:
-        R, p, J = st.bodies[body.index]
-        return fm.so3_exp(h * (J[:3] @ v)) @ R, p + h * (J[3:] @ v)
-    return _predict_pose(body.kind, st, v, h)
-
-
-def _predict_pose(kind, st, v, h):
-    if kind == adapter.FREE:
-        return fm.so3_exp(h * v[:3]) @ st.R, st.p + h * v[3:6]
-    th = st.q[2] + h * v[2]
-    c, s = math.cos(th), math.sin(th)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    return R, np.array([st.q[0] + h * v[0], st.q[1] + h * v[1], 0.0])
 
 
 def _contact_shift(b1, b2, states, h, gap_vector, d, a1=None, a2=None):
