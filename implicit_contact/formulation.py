@@ -43,6 +43,7 @@ from .rows import bodies as rb
 from .rows import contact as rc
 from .rows import dynamics as rd
 from .rows import support as rs
+from .rows import checks as rk
 from .rows import tables as rt
 from .rows.assemble import assemble
 
@@ -501,6 +502,17 @@ class StepProblem:
         """v_2(a2) - v_1(a1) of pair k at l+1 (world frame)."""
         self._evaluated_at(z)
         return self._pairs_at[k][5].copy()
+
+    def checks(self, z, tol, solver_tol, touch) -> np.ndarray:
+        """Per pair the flags of rows/checks.solution_checks at z (friction rows to switch, a body
+        through a half-space, a stale k1, a penetrating gap, friction outside its cone)."""
+        self._evaluated_at(z)
+        flags = np.zeros(len(self.specs), np.int64)
+        R, p = self._work[0], self._work[1]
+        t = self.tables
+        rk.solution_checks(t.pair_i, t.pair_f, t.fpar, np.ascontiguousarray(z, dtype=float), self._rep, R, p,
+                           tol, solver_tol, touch, flags)
+        return flags
 
     def support_wrench(self, z, s) -> np.ndarray:
         """(p_x, p_y, tau about the body origin) of support block s's friction impulse."""

@@ -39,6 +39,7 @@ from scipy.optimize import nnls
 
 from . import formulation as fm
 from . import ncp
+from .rows import checks as rk
 
 MAX_SOLVES = 8      # solves per step (the recoveries below restart at most this often in all)
 RETRY = "retry"
@@ -56,6 +57,7 @@ class Attempt:
     specs: list
     pairs: list
     tol: float
+    solver_tol: float
     h: float
     body_pos: dict                                 # the step's context, for rebuilding pair specs
     states: list
@@ -81,12 +83,10 @@ def friction_rows(stepper, att: Attempt, problem, result):
     them (sigma is then undetermined: a singular Jacobian; a converged solution with an open
     gap keeps its rows and is checked, |p_t| <= mu p_n, by the stepper). Solved again from the
     current solution (a transfer)."""
-    x = result.x
     specs = att.specs
-    pn = [x[sl.p_n] if np.isfinite(x[sl.p_n]) else 0.0 for sl in problem.layout.pairs]
-    off = [k for k, sp in enumerate(specs) if sp.with_friction and pn[k] <= TOUCH]
-    on = [k for k, sp in enumerate(specs)
-          if sp.friction.active and not sp.with_friction and pn[k] > TOUCH] if result.success else []
+    flags = problem.checks(result.x, att.tol, att.solver_tol, TOUCH)
+    off = [k for k in range(len(specs)) if flags[k] & rk.OFF]
+    on = [k for k in range(len(specs)) if flags[k] & rk.ON] if result.success else []
     if not (on or off):
         return None
     att.previous = (problem, result.x if result.success else att.z0)
@@ -102,7 +102,7 @@ def passed_through(stepper, att: Attempt, problem, result):
     _passed_through): re-seeded from static closest points, twice at most, then a failure."""
     if not result.success:
         return None
-    through = _passed_through(problem, result.x)
+    through = _passed_through(problem, result.x, att.tol)
     if not through:
         return None
     if att.k1_switches < 2:
@@ -414,37 +414,25 @@ def _central_touch_point(spec, P1, P2, a, normal, tol):
     return a
 
 
-def _passed_through(problem, x) -> list:
+def _passed_through(problem, x, tol) -> list:
     """Pairs against a fixed half-space whose free multiplier l2 is not positive.
 
     With a fixed half-space's point reduced onto its plane, the pair 0 <= l2 _|_ -g(a2) is
     trivial and l2 is free ([GI] Example 1). A body that passes wholly through the half-space in
     one step then has a spurious solution: a1 on its far side (grad f along +n, l2 = -|grad f|),
     a2 its projection on the plane, gap >= 0 and no impulse: tunnelling. A valid contact has
-    grad f(a1) along -n, i.e. l2 > 0."""
-    out = []
-    for k, spec in enumerate(problem.specs):
-        sl = problem.layout.pairs[k]
-        # (a fixed half-space as body 1 needs no check: body 2's multipliers are bounded and its
-        # point must then face the plane, and the gap row keeps it above)
-        if spec.obj2.fixed_halfspace and len(sl.l2) and x[int(sl.l2[0])] <= 0.0:
-            out.append(k)
-    return out
+    grad f(a1) along -n, i.e. l2 > 0. (A fixed half-space as body 1 needs no check: body 2's
+    multipliers are bounded and its point must then face the plane, and the gap row keeps it
+    above.) The test is rows/checks.py's THROUGH."""
+    flags = problem.checks(x, tol, 0.0, TOUCH)
+    return [k for k in range(len(flags)) if flags[k] & rk.THROUGH]
 
 
 def _inactive_k1(problem, x, tol) -> list:
-    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1."""
-    out = []
-    for k, spec in enumerate(problem.specs):
-        if len(spec.obj1.functions) < 2:
-            continue
-        b1 = spec.obj1.body
-        a1 = problem.points(x, k)[0]
-        f, _ = fm.eval_functions((spec.obj1.functions[spec.k1],),
-                                 problem.bodies[b1].pose(problem.body_velocity(x, b1)), a1)
-        if f[0] < -tol:
-            out.append(k)
-    return out
+    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1 (rows/
+    checks.py's STALE)."""
+    flags = problem.checks(x, tol, 0.0, TOUCH)
+    return [k for k in range(len(flags)) if flags[k] & rk.STALE]
 
 
 def _below_plane_seed(spec, P):

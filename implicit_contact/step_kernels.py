@@ -229,3 +229,91 @@ def overlapping(P, glo, ghi, out):
         if ok:
             count += 1
     return count
+
+
+# ---------------------------------------------------------------------------------------------
+# pairs that cannot touch within the step (ImplicitContactStepper._far_pairs explains the bound)
+# ---------------------------------------------------------------------------------------------
+@kernel
+def _motion(o, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, v):
+    """(|omega| rho) of piece o's body at the world velocities Vel; v (3,): its origin's velocity."""
+    b = ob_body[o]
+    kind = bd_kind[b]
+    v[0] = v[1] = v[2] = 0.0
+    if kind == FIXED:
+        return 0.0
+    off = sk_voff[bd_sk[b]]
+    if kind == PLANAR:
+        v[0], v[1] = Vel[off], Vel[off + 1]
+        return abs(Vel[off + 2]) * ob_radius[o]
+    v[0], v[1], v[2] = Vel[off + 3], Vel[off + 4], Vel[off + 5]
+    return math.sqrt(Vel[off] ** 2 + Vel[off + 1] ** 2 + Vel[off + 2] ** 2) * ob_radius[o]
+
+
+@kernel
+def far_test(P, gap, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, h, tol, far):
+    """far[k]: pair P[k] with a known lower bound gap[k] of its gap (NaN: unknown) cannot close
+    within the step at the velocities Vel plus one free step of each body's own motion:
+    g > h |v_i - v_j| + reach + own + 10 tol, reach = h (|omega_i| rho_i + |omega_j| rho_j),
+    own = h (|v_i| + |v_j|) + reach."""
+    vi = np.zeros(3)
+    vj = np.zeros(3)
+    count = 0
+    for k in range(P.shape[0]):
+        g = gap[k]
+        far[k] = False
+        if not (g == g):
+            continue
+        ri = _motion(P[k, 0], ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, vi)
+        rj = _motion(P[k, 1], ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, vj)
+        reach = h * (ri + rj)
+        own = h * (math.sqrt(vi[0] ** 2 + vi[1] ** 2 + vi[2] ** 2) + math.sqrt(vj[0] ** 2 + vj[1] ** 2 + vj[2] ** 2))
+        own += reach
+        rel = math.sqrt((vi[0] - vj[0]) ** 2 + (vi[1] - vj[1]) ** 2 + (vi[2] - vj[2]) ** 2)
+        if g > h * rel + reach + own + 10.0 * tol:
+            far[k] = True
+            count += 1
+    return count
+
+
+@kernel
+def far_after(P, gap, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, h, tol, left):
+    """left[k]: the lower bound of far pair k's gap after a step at the velocities Vel,
+    g - h (|v_i - v_j| + |omega_i| rho_i + |omega_j| rho_j); returns how many are <= tol."""
+    vi = np.zeros(3)
+    vj = np.zeros(3)
+    violated = 0
+    for k in range(P.shape[0]):
+        ri = _motion(P[k, 0], ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, vi)
+        rj = _motion(P[k, 1], ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, vj)
+        rel = math.sqrt((vi[0] - vj[0]) ** 2 + (vi[1] - vj[1]) ** 2 + (vi[2] - vj[2]) ** 2)
+        left[k] = gap[k] - h * (rel + ri + rj)
+        if left[k] <= tol:
+            violated += 1
+    return violated
+
+
+@kernel
+def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff, V_solved, VF, margins, h, tol):
+    """Whether some piece's solved motion leaves what its broadphase margin allowed for
+    (ImplicitContactStepper._uncovered): h (|dv| + |d omega| rho) > margin - 9 tol with dv the
+    solved minus the free-flight velocity; always for articulated and unbounded moving pieces."""
+    for o in range(ob_body.shape[0]):
+        b = ob_body[o]
+        kind = bd_kind[b]
+        if kind == FIXED:
+            continue
+        if kind == ARTICULATED or not ob_bounded[o]:
+            return True
+        off = sk_voff[bd_sk[b]]
+        if kind == PLANAR:
+            lin = math.sqrt((V_solved[off] - VF[off]) ** 2 + (V_solved[off + 1] - VF[off + 1]) ** 2)
+            ang = abs(V_solved[off + 2] - VF[off + 2])
+        else:
+            lin = math.sqrt((V_solved[off + 3] - VF[off + 3]) ** 2 + (V_solved[off + 4] - VF[off + 4]) ** 2
+                            + (V_solved[off + 5] - VF[off + 5]) ** 2)
+            ang = math.sqrt((V_solved[off] - VF[off]) ** 2 + (V_solved[off + 1] - VF[off + 1]) ** 2
+                            + (V_solved[off + 2] - VF[off + 2]) ** 2)
+        if h * (lin + ang * ob_radius[o]) > margins[o] - 9.0 * tol:
+            return True
+    return False

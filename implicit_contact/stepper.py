@@ -46,6 +46,7 @@ from . import step_solver
 from .broadphase import Broadphase
 from .memory import PairMemory, warm_start as memory_warm_start
 from .params import Compliance, Friction
+from .rows import checks as rk
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
 
@@ -368,14 +369,15 @@ class ImplicitContactStepper:
         if not result.success:
             return self._failure(problem, result, att.specs, t0, h)
         contacts, new_last = self._solution(problem, result.x, att.specs)
-        bad = self._check_solution(contacts, att.specs)
+        bad = self._check_solution(problem, result.x, contacts, att.specs)
         if bad:
             return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
                               t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
         v_solved = [result.x[problem.layout.v_index[att.sk_pos[s]]] if s in att.sk_pos else state.v_free[s]
                     for s in range(len(self.scene.skeletons))]
-        far_next, violated = self._far_after(far, v_solved, h)
-        violated |= self._uncovered(candidates, v_solved, state)
+        V_solved = self._world_vector(v_solved)
+        far_next, violated = self._far_after(far, V_solved, h)
+        violated |= self._uncovered(candidates, v_solved, V_solved, state)
         if violated:
             # a pair left out could touch at the solved velocities: solve the step again with it
             return self._one_step(h, keep | violated)
@@ -495,9 +497,17 @@ class ImplicitContactStepper:
         lo, hi = self._boxes(R1, p1, R2, p2, join)
         return [p for p in self._broadphase.candidates(lo, hi, margins) if self._allowed(*p)]
 
+    def _world_vector(self, per_skeleton):
+        """Per-skeleton velocities as one world vector (the layout of the world buffers)."""
+        w = self._world
+        out = np.empty_like(w.V)
+        for s, v in enumerate(per_skeleton):
+            out[w.sk_voff[s]:w.sk_voff[s] + w.sk_nv[s]] = v
+        return out
+
     def _free_step(self, state, far, keep, t0) -> StepReport:
         """No pair can touch within the step: every skeleton takes its free-flight step."""
-        far_next, violated = self._far_after(far, state.v_free, state.h)
+        far_next, violated = self._far_after(far, self._world.VF, state.h)
         if violated:
             return self._one_step(state.h, keep | violated)
         self._commit(state, state.v_free)
@@ -516,7 +526,8 @@ class ImplicitContactStepper:
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
-        att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, state.h, body_pos, state.states)
+        att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, self.options.solver.tol, state.h,
+                               body_pos, state.states)
         att.involved, att.body_ids = involved, body_ids
         att.sk_pos = {s: k for k, s in enumerate(involved)}
         att.supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
@@ -581,33 +592,34 @@ class ImplicitContactStepper:
         to solve, {pair: g} of those left out)."""
         if not self.options.skip_far_pairs or self._all_pairs or self._trapezoidal_skeletons():
             return pairs, {}
-        near, far = [], {}
-        for i, j in pairs:
-            g = self._known_gap(i, j) if (i, j) not in keep else None
-            if g is not None:
-                mi, mj = self._motion(i, v_free), self._motion(j, v_free)
-                reach = h * (mi[1] * mi[2] + mj[1] * mj[2])
-                own = h * (np.linalg.norm(mi[0]) + np.linalg.norm(mj[0])) + reach
-                if g > h * np.linalg.norm(mi[0] - mj[0]) + reach + own + 10.0 * self.options.contact_tolerance:
-                    far[(i, j)] = g
-                    self._left_out = True
-                    continue
-            near.append((i, j))
-        return near, far
+        if not pairs:
+            return pairs, {}
+        w = self._world
+        P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        gap = np.array([_nan_if_none(self._known_gap(i, j)) if (i, j) not in keep else math.nan for i, j in pairs])
+        far = np.zeros(len(P), np.bool_)
+        if sk.far_test(P, gap, w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff, w.VF, h,
+                       self.options.contact_tolerance, far):
+            self._left_out = True
+        near = [pair for pair, f in zip(pairs, far) if not f]
+        return near, {pair: float(g) for pair, g, f in zip(pairs, gap, far) if f}
 
-    def _far_after(self, far, v_solved, h):
+    def _far_after(self, far, V_solved, h):
         """({pair: lower bound of its gap after the step}, pairs whose bound the solved velocities
-        do not keep above the contact tolerance)."""
-        bounds, violated = {}, set()
-        for (i, j), g in far.items():
-            mi, mj = self._motion(i, v_solved), self._motion(j, v_solved)
-            left = g - h * (np.linalg.norm(mi[0] - mj[0]) + mi[1] * mi[2] + mj[1] * mj[2])
-            if left <= self.options.contact_tolerance:
-                violated.add((i, j))
-            bounds[frozenset((self._objects[i].key, self._objects[j].key))] = left
-        return bounds, frozenset(violated)
+        (world vector) do not keep above the contact tolerance; step_kernels.far_after)."""
+        if not far:
+            return {}, frozenset()
+        w = self._world
+        pairs = list(far)
+        P = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        gap = np.array([far[p] for p in pairs])
+        left = np.empty(len(P))
+        tol = self.options.contact_tolerance
+        sk.far_after(P, gap, w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff, V_solved, h, tol, left)
+        bounds = {frozenset((self._objects[i].key, self._objects[j].key)): float(g) for (i, j), g in zip(pairs, left)}
+        return bounds, frozenset(p for p, g in zip(pairs, left) if g <= tol)
 
-    def _uncovered(self, candidates, v_solved, state):
+    def _uncovered(self, candidates, v_solved, V_solved, state):
         """Pairs the broadphase did not offer that the solved step could bring into contact.
 
         The candidates come from the free-flight motion plus a margin (see _read). An impact can
@@ -617,23 +629,11 @@ class ImplicitContactStepper:
         if that exceeds the margin's motion allowance, the broadphase runs again at the solved end
         poses and the pairs it finds that were not candidates are returned."""
         scene = self.scene
-        h, states, margins = state.h, state.states, state.margins
-        moved = False
+        h, states = state.h, state.states
         tol = self.options.contact_tolerance
-        for k, o in enumerate(self._objects):
-            rec = scene.bodies[o.body]
-            if rec.skeleton_index < 0:
-                continue
-            if rec.kind == adapter.ARTICULATED or o.radius is None:
-                moved = True
-                break
-            dv = np.asarray(v_solved[rec.skeleton_index]) - np.asarray(state.v_free[rec.skeleton_index])
-            lin, ang = (np.linalg.norm(dv[:2]), abs(dv[2])) if rec.kind == adapter.PLANAR else \
-                (np.linalg.norm(dv[3:6]), np.linalg.norm(dv[:3]))
-            if h * (lin + ang * o.radius) > margins[k] - 9.0 * tol:
-                moved = True
-                break
-        if not moved:
+        w = self._world
+        if not sk.moved_beyond_margins(w.ob_body, w.ob_radius, w.ob_bounded, w.bd_kind, w.bd_sk, w.sk_voff,
+                                       V_solved, w.VF, state.margins, h, tol):
             return frozenset()
         w = self._world
         midpoint = self._trapezoidal_skeletons()
@@ -665,17 +665,6 @@ class ImplicitContactStepper:
         if last is not None:
             return last["distance"] - 10.0 * self.options.contact_tolerance if last["p_n"] == 0.0 else None
         return self._far.get(frozenset((oi.key, oj.key)))
-
-    def _motion(self, k, velocities):
-        """(linear velocity of the body origin (3,), |omega|, rho) of object k's body."""
-        o = self._objects[k]
-        rec = self.scene.bodies[o.body]
-        if rec.kind == adapter.FIXED:
-            return _ZERO3, 0.0, 0.0
-        v = velocities[rec.skeleton_index]
-        if rec.kind == adapter.PLANAR:
-            return np.array([v[0], v[1], 0.0]), abs(float(v[2])), o.radius
-        return np.asarray(v[3:6], float), float(np.linalg.norm(v[:3])), o.radius
 
     # -- pieces of a step ------------------------------------------------------------------------
     def _solve(self, problem, z0):
@@ -890,18 +879,18 @@ class ImplicitContactStepper:
         return ContactReport(b1.body_node, b2.body_node, st.a1, st.a2, st.normal, st.gap, st.p_n, pt, po,
                              st.p_r, st.sigma, slip, b1.name, b2.name, st.p_n - p_core, p_core, deflection)
 
-    def _check_solution(self, contacts, specs) -> str:
+    def _check_solution(self, problem, z, contacts, specs) -> str:
+        """'' or why the solution is refused: a pair penetrating beyond the contact tolerance or a
+        friction impulse outside its cone (rows/checks.py's GAP and CONE)."""
         tol = self.options.contact_tolerance
-        for c, spec in zip(contacts, specs):
-            if not np.isfinite(c.p_n) or c.gap < -tol:
+        flags = problem.checks(z, tol, self.options.solver.tol, _TOUCH)
+        for c, spec, f in zip(contacts, specs, flags):
+            if f & rk.GAP:
                 return f"pair {c.name_a} / {c.name_b} penetrates by {-c.gap:.3g} (tolerance {tol:g})"
-            if spec.with_friction:
-                mu = spec.friction.mu
+            if f & rk.CONE:
                 ft = math.hypot(c.p_t / spec.friction.e_t, c.p_o / spec.friction.e_o)
-                bound = mu * c.p_n + 1e3 * self.options.solver.tol * spec.impulse_scale
-                if ft > bound * (1 + 1e-8):
-                    return (f"pair {c.name_a} / {c.name_b} friction {ft:.3g} outside the cone "
-                            f"mu p_n = {mu * c.p_n:.3g}")
+                return (f"pair {c.name_a} / {c.name_b} friction {ft:.3g} outside the cone "
+                        f"mu p_n = {spec.friction.mu * c.p_n:.3g}")
         return ""
 
     def _failure(self, problem, result, specs, t0, h) -> StepReport:
@@ -975,6 +964,7 @@ class _World:
             reach.append(r)
         self.ob_reach = np.array(reach, float)
         self.unbounded = [k for k, o in enumerate(objects) if o.local_box is None]
+        self.ob_radius = np.array([o.radius if o.radius is not None else 0.0 for o in objects], float)
         self.exact_lo, self.exact_hi = np.zeros((no, 3)), np.zeros((no, 3))
         self.Q, self.V, self.FB, self.VF = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
         self.MB = np.zeros(max(nM, 1))
@@ -1042,6 +1032,10 @@ def _active_count(piece, pose, a, tol) -> int:
     R, p = pose
     xi = R.T @ (np.asarray(a, float) - p)
     return sum(abs(float(f.value(xi))) <= tol for f in piece.functions)
+
+
+def _nan_if_none(value):
+    return math.nan if value is None else value
 
 
 def _pose_dim(pose, dim):
