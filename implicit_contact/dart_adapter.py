@@ -460,30 +460,40 @@ def _spring_damper(skel):
     return k, d, q0
 
 
-def read_skeleton(rec: SkeletonRecord, h: float, q_out, v_out, M_out, f_out) -> None:
-    """q, v, M and the generalized force at l of one mobile skeleton, written into the given
-    views (the stepper's world buffers). Joint springs and dampers enter implicitly as DART
-    treats them (see the module docstring); their coefficients are the ones read when the
-    stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton)."""
+def read_raw(rec: SkeletonRecord, q_out, v_out, tau_out, fext_out, dv_out=None) -> None:
+    """What a mobile skeleton carries at l: q, v, its joint forces and external forces (and its
+    accelerations, for a snapshot), into the given views (the stepper's world buffers)."""
     skel = rec.skeleton
     q_out[:] = skel.getPositions()
     v_out[:] = skel.getVelocities()
+    tau_out[:] = skel.getForces()
+    fext_out[:] = skel.getExternalForces()
+    if dv_out is not None:
+        dv_out[:] = skel.getAccelerations()
+
+
+def read_dynamics(rec: SkeletonRecord, h: float, q, v, tau, fext, M_out, f_out) -> None:
+    """M and the generalized force tau + tau_ext - (Coriolis + gravity) at l of one mobile
+    skeleton (q, v, tau, fext: as read_raw read them). Joint springs and dampers enter implicitly
+    as DART treats them (see the module docstring); their coefficients are the ones read when the
+    stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton)."""
+    skel = rec.skeleton
     M_out[:] = skel.getMassMatrix()
-    f_out[:] = skel.getForces()
-    f_out += skel.getExternalForces()
+    f_out[:] = tau
+    f_out += fext
     f_out -= skel.getCoriolisAndGravityForces()
     sd = rec.spring_damper
     if sd is not None:
         k, d, q0 = sd
         # DART's rest position is per dof in joint coordinates; for Ball/Free joints springs are
         # on the exponential coordinates as in DART's GenericJoint
-        f_out -= k * (q_out - q0 + h * v_out) + d * v_out
+        f_out -= k * (q - q0 + h * v) + d * v
         M_out[np.diag_indices(rec.ndof)] += h * d + h * h * k
 
 
 def read_body(body: BodyRecord, R_out, p_out, J_out=None) -> None:
     """A body's world pose at l (and, with J_out (6, k), DART's world Jacobian of its origin)."""
-    T = body.body_node.getWorldTransform().matrix()
+    T = body.body_node.getTransform().matrix()
     R_out[:] = T[:3, :3]
     p_out[:] = T[:3, 3]
     if J_out is not None:
@@ -501,13 +511,17 @@ def body_pose(body: BodyRecord):
 @dataclass
 class WorldSnapshot:
     time: float
-    skeletons: list            # (skeleton, q, v, dv, commands)
+    skeletons: list            # (skeleton, q, v, dv, tau) of every skeleton with dofs
 
 
-def snapshot(world) -> WorldSnapshot:
-    items = []
-    for s in range(world.getNumSkeletons()):
-        sk = world.getSkeleton(s)
+def snapshot(world, skeletons=None, arrays=()) -> WorldSnapshot:
+    """The world's time and every skeleton's q, v, dv and joint forces, to restore a failed step.
+    skeletons: the world's skeletons with dofs not given in arrays (default: all of them);
+    arrays: (skeleton, q, v, dv, tau) already read (copied here)."""
+    if skeletons is None:
+        skeletons = [world.getSkeleton(s) for s in range(world.getNumSkeletons())]
+    items = [(sk, q.copy(), v.copy(), dv.copy(), tau.copy()) for sk, q, v, dv, tau in arrays]
+    for sk in skeletons:
         items.append((sk, np.array(sk.getPositions()), np.array(sk.getVelocities()),
                       np.array(sk.getAccelerations()), np.array(sk.getForces())))
     return WorldSnapshot(world.getTime(), items)

@@ -349,12 +349,25 @@ class StepProblem:
                 pf[rc.Q_DPREV] = spec.delta_prev
             pf[rc.Q_H] = h
         self._synced = [(None, None)] * len(specs)
+        self._invalidate()
+
+    def fill(self, h, source):
+        """refresh's state part alone (rows/tables.fill_state from the world buffers), for a step
+        whose pairs' parameters are already in the tables (the stepper's _repeat_step)."""
+        t = self.tables
+        self.h = h
+        rt.fill_state(*source, h, t.body_dim, t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce,
+                      t.scale, self._pos_rows, t.sup_body, t.sup_c, t.sup_er, t.sup_mun, t.sup_f)
+        self._invalidate()
+
+    def _invalidate(self):
+        """Forget every evaluation (the tables changed)."""
         self._key_f = self._key_j = None
         self._F = self._J = None
         self._rep_at = None
         self._reports_np = None
         if self._pattern is not None:
-            self._pattern = self._pattern[:4] + (t.scale[self._pattern_rows],)
+            self._pattern = self._pattern[:4] + (self.tables.scale[self._pattern_rows],)
 
     def _sync(self):
         """Copy the pairs' k1 and tangent axis into the tables (the stepper may set them late)."""

@@ -46,8 +46,18 @@ class PairMemory:
         self.z = np.array(z, float)
         self.rep = problem._rep.copy()
         self.keys = {spec.key: k for k, spec in enumerate(specs)}
-        self.axes = [spec.tangent_axis for spec in specs]
         self.compliance_k = [spec.compliance.k_n if spec.compliance is not None else 0.0 for spec in specs]
+
+    def carried(self, problem, z) -> "PairMemory":
+        """The memory of a step whose pairs are this memory's, in the same rows of the same
+        problem (the stepper's _repeat_step): the keys are kept, the arrays read anew."""
+        t = problem.tables
+        problem._evaluated_at(z)
+        new = PairMemory.__new__(PairMemory)
+        new.pair_i, new.pair_f = t.pair_i.copy(), t.pair_f.copy()
+        new.z, new.rep = np.array(z, float), problem._rep.copy()
+        new.keys, new.compliance_k = self.keys, self.compliance_k
+        return new
 
     def __contains__(self, key) -> bool:
         return key in self.keys
@@ -105,7 +115,7 @@ class _Record:
         if name == "k1":
             return int(pi[rc.P_K1])
         if name == "axis":
-            return m.axes[k]
+            return pf[rc.Q_AXIS:rc.Q_AXIS + 3].copy() if d == 3 else None
         if name == "dbar":
             return float(z[c0 + pi[rc.P_DBAR]]) if pi[rc.P_DBAR] >= 0 else 0.0
         if name == "deflection":
@@ -281,3 +291,67 @@ def warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, mem, 
         use_v0 = touched[col] and not cold
         for i in range(k):
             z0[col + i] = v0[col + i] if use_v0 else v_free[col + i]
+
+
+@kernel
+def choose_axis(axis, normal, limit, out):
+    """A pair's tangent axis (rows/contact.py, Gram-Schmidt on it): kept while |axis . n| <= limit,
+    else the world axis least aligned with n (the first of the smallest |n_i|). Returns whether
+    it changed."""
+    dot = axis[0] * normal[0] + axis[1] * normal[1] + axis[2] * normal[2]
+    known = axis[0] != 0.0 or axis[1] != 0.0 or axis[2] != 0.0
+    if known and abs(dot) <= limit:
+        for i in range(3):
+            out[i] = axis[i]
+        return False
+    nn = math.sqrt(normal[0] ** 2 + normal[1] ** 2 + normal[2] ** 2)
+    best = 0
+    for i in range(1, 3):
+        if abs(normal[i]) / nn < abs(normal[best]) / nn:
+            best = i
+    for i in range(3):
+        out[i] = 1.0 if i == best else 0.0
+    return True
+
+
+@kernel
+def carry_pairs(pair_i, pair_f, old_i, old_f, z_old, rep_old, touch, limit):
+    """The pair parameters a step takes from the memory when every pair persists in the same
+    rows (memory row k = pair k; ImplicitContactStepper._pair_spec for one pair): the tangent
+    axis kept or re-chosen (choose_axis), the layer's deflection at l (delta_prev). Returns
+    False if a pair's friction rows would change (they are built iff mu > 0 and the last
+    p_n > touch s_p): the layout must then change."""
+    out = np.zeros(3)
+    for k in range(pair_i.shape[0]):
+        pi, pf, oi, of = pair_i[k], pair_f[k], old_i[k], old_f[k]
+        p_n = of[rc.Q_SP] * z_old[oi[rc.P_C0] + oi[rc.P_PN]]
+        rows = pf[rc.Q_MU] > 0.0 and p_n > touch * pf[rc.Q_SP]
+        if rows != (pi[rc.P_FR] != 0):
+            return False
+        if pi[rc.P_DIM] == 3:
+            choose_axis(of[rc.Q_AXIS:rc.Q_AXIS + 3], rep_old[k, rc.R_N:rc.R_N + 3], limit, out)
+            for i in range(3):
+                pf[rc.Q_AXIS + i] = out[i]
+        if pi[rc.P_COMP] != rc.RIGID:
+            pf[rc.Q_DPREV] = z_old[oi[rc.P_C0] + oi[rc.P_DN]]
+    return True
+
+
+@kernel
+def known_gaps(pair_i, z, rep, eligible, tol, out):
+    """Per pair of a memory: the known lower bound of its gap for the next far-pair test
+    (ImplicitContactStepper._known_gap): the Euclidean distance of its separated closest points
+    minus 10 tol if its normal impulse was exactly 0, else NaN (NaN too where not eligible)."""
+    for k in range(pair_i.shape[0]):
+        out[k] = np.nan
+        if not eligible[k] or z[pair_i[k, rc.P_C0] + pair_i[k, rc.P_PN]] != 0.0:
+            continue
+        dist = 0.0
+        if rep[k, rc.R_GAP] > 0.0:
+            d = pair_i[k, rc.P_DIM]
+            acc = 0.0
+            for q in range(d):
+                g = rep[k, rc.R_A2 + q] - rep[k, rc.R_A1 + q]
+                acc += g * g
+            dist = math.sqrt(acc)
+        out[k] = dist - 10.0 * tol

@@ -317,3 +317,13 @@ def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff
         if h * (lin + ang * ob_radius[o]) > margins[o] - 9.0 * tol:
             return True
     return False
+
+
+@kernel
+def all_finite(a, b, c, d):
+    """Whether every entry of the four arrays is finite."""
+    for x in (a, b, c, d):
+        for i in range(x.shape[0]):
+            if not math.isfinite(x[i]):
+                return False
+    return True

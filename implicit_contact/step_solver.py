@@ -66,30 +66,40 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
                  st_R, st_p, st_w, st_vo, st_T, FL, JL, False, False)
 
 
-def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions) -> ncp.McpResult:
+def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
     if problem._sparse:
         return ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options)
-    x0, lo, hi = ncp.check_problem(z0, problem.lower, problem.upper, options)
-    problem._sync()
+    x0 = np.ascontiguousarray(z0, dtype=float)
+    if x0.shape != problem.lower.shape or not np.isfinite(x0 @ x0) and not np.isfinite(x0).all():
+        raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
+    if sync:
+        problem._sync()
     n = x0.shape[0]
-    buf = ncp.Buffers(n, options.max_iterations)
+    key = (options.max_iterations, options)
+    held = problem.__dict__.setdefault("_solver_buffers", {})
+    if key not in held:
+        if len(held) > 4:
+            held.clear()
+        held[key] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)),
+                     ncp.options_array(options))
+    buf, J, H, opt = held[key]
     t = problem.tables
     R, p, w, vo, T, FL, JL = problem._work
     _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
-                 t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, lo, hi, ncp.options_array(options),
+                 t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, problem.lower, problem.upper, opt,
                  buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
-                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, np.empty((n, n)), np.empty((n, n)),
-                 problem._rep, R, p, w, vo, T, FL, JL)
+                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL, JL)
     result = ncp.result_from_buffers(buf, options)
     problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
     return result
 
 
-def solve(problem: StepProblem, z0, options: ncp.SolverOptions) -> ncp.McpResult:
-    """The step's MCP from z0, polished (see the module docstring)."""
-    result = _solve_once(problem, z0, options)
+def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = True) -> ncp.McpResult:
+    """The step's MCP from z0, polished (see the module docstring). sync: copy the pairs' k1 and
+    tangent axes from their specs first (False: the tables already hold them)."""
+    result = _solve_once(problem, z0, options, sync)
     if result.success and result.residual > 1e-3 * options.tol:
-        polish = _solve_once(problem, result.x, replace(options, tol=1e-3 * options.tol, max_iterations=1))
+        polish = _solve_once(problem, result.x, replace(options, tol=1e-3 * options.tol, max_iterations=1), False)
         if polish.residual < result.residual:
             result = replace(result, x=polish.x, f=polish.f, residual=polish.residual,
                              iterations=result.iterations + polish.iterations)

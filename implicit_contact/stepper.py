@@ -20,7 +20,7 @@ Articulated skeletons (dart_adapter: kind ARTICULATED) take part like single bod
 the skeleton with contact shapes is a body of the step with the skeleton's velocity columns and
 DART's world Jacobian at l; pairs within one skeleton are skipped (no self-collision); the write-
 back is DART's setVelocities + integratePositions for every mobile skeleton, as for free bodies.
-Joint springs and dampers are implicit as in DART (dart_adapter.read_skeleton).
+Joint springs and dampers are implicit as in DART (dart_adapter.read_dynamics).
 
 Friction rows of a pair are built when the pair can be in contact in this step (it was in contact
 at the last step, or its bodies are within the motion margin). A pair whose gap is open at the
@@ -30,6 +30,7 @@ whose rows were left out but whose solution has p_n > 0 is given its rows and th
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 import math
 import warnings
@@ -44,7 +45,7 @@ from . import shapes as shp
 from . import step_kernels as sk
 from . import step_solver
 from .broadphase import Broadphase
-from .memory import PairMemory, warm_start as memory_warm_start
+from .memory import PairMemory, carry_pairs, choose_axis, known_gaps, warm_start as memory_warm_start
 from .params import Compliance, Friction
 from .rows import checks as rk
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
@@ -183,6 +184,8 @@ class ImplicitContactStepper:
         self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
         self._left_out = False     # this step left a far pair out
         self._problems = {}        # persistent step problems, by layout signature and bodies
+        self._ctx = None           # what the last step leaves for _repeat_step
+        self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retrying = False
         self._check_state_finite()
         if self.options.check_penetration_at_start:
@@ -195,6 +198,7 @@ class ImplicitContactStepper:
             raise ValueError(f"friction must be an ic.Friction, got {type(friction).__name__}")
         ia, ib = self._body_of(node_a), self._body_of(node_b)
         self._pair_friction[frozenset((ia, ib))] = friction
+        self._ctx = None
 
     def set_pair_compliance(self, node_a, node_b, compliance: Compliance) -> None:
         """Give the pair (node_a, node_b) a quasi-rigid layer (default: the bodies' own layers,
@@ -203,6 +207,7 @@ class ImplicitContactStepper:
             raise ValueError(f"compliance must be an ic.Compliance, got {type(compliance).__name__}")
         ia, ib = self._body_of(node_a), self._body_of(node_b)
         self._pair_compliance[frozenset((ia, ib))] = compliance
+        self._ctx = self._midpoint = None
 
     def set_support_friction(self, node, mu: float, normal_force: float, points=((0.0, 0.0),),
                              torsion_radius: float | None = None) -> None:
@@ -218,6 +223,7 @@ class ImplicitContactStepper:
                              f"'{self.scene.bodies[b].name}' is {self.scene.bodies[b].kind}")
         support = SupportFriction.from_points(mu, normal_force, points, torsion_radius)
         self._last_support.pop(b, None)
+        self._ctx = None
         if support.mu == 0.0:
             self._supports.pop(b, None)
         else:
@@ -233,11 +239,12 @@ class ImplicitContactStepper:
         """All mobile skeletons when any quasi-rigid layer of the world uses the "midpoint"
         scheme (ic.Compliance): the energy-consistent variant integrates every position with the
         trapezoidal rule, q+ = q + h (v + v+)/2, in flight too (exact under gravity); else none."""
-        layers = [o.compliance for o in self._objects if o.compliance is not None]
-        layers += list(self._pair_compliance.values())
-        if any(c.scheme == "midpoint" for c in layers):
-            return set(range(len(self.scene.skeletons)))
-        return set()
+        if self._midpoint is None:
+            layers = [o.compliance for o in self._objects if o.compliance is not None]
+            layers += list(self._pair_compliance.values())
+            self._midpoint = (set(range(len(self.scene.skeletons))) if any(c.scheme == "midpoint" for c in layers)
+                              else set())
+        return self._midpoint
 
     def spring_energy(self) -> float:
         """Energy stored in the quasi-rigid layers at the end of the last step [J]:
@@ -249,9 +256,8 @@ class ImplicitContactStepper:
         h = self.world.getTimeStep()
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
-        self._check_state_finite()
-        snap = adapter.snapshot(self.world)
-        saved = (self._last, dict(self._last_support), dict(self._far))
+        snap = self._begin()
+        saved = (self._last, dict(self._last_support), dict(self._far), self._ctx)
 
         def attempt(n):
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
@@ -260,7 +266,9 @@ class ImplicitContactStepper:
                 adapter.finish_step(self.world, h)
             else:
                 adapter.restore(self.world, snap)
+                self._world.raw_valid = False
                 self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
+                self._ctx = saved[3]
             return report
 
         self._retrying = False
@@ -312,6 +320,33 @@ class ImplicitContactStepper:
                                         f"{body.name}:{label}#{len(objs)}", cs.compliance))
         return objs
 
+    def _begin(self) -> adapter.WorldSnapshot:
+        """The start of a step: every mobile skeleton's q, v, joint and external forces read once
+        (into the world buffers, used by the step's first read) and checked, then the world's
+        snapshot for a failed step."""
+        w = self._world
+        gravity = np.asarray(self.world.getGravity(), float)
+        if not np.all(np.isfinite(gravity)):
+            raise ValueError(f"the world has non-finite gravity {self.world.getGravity()}; the stepper "
+                             "refuses to step it.")
+        self._gravity_norm = float(np.linalg.norm(gravity))
+        views = []
+        for s, rec in enumerate(self.scene.skeletons):
+            o, k = w.sk_voff[s], w.sk_nv[s]
+            adapter.read_raw(rec, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k], w.DV[o:o + k])
+            views.append((rec.skeleton, w.Q[o:o + k], w.V[o:o + k], w.DV[o:o + k], w.TAU[o:o + k]))
+        if not sk.all_finite(w.Q, w.V, w.TAU, w.FEXT):
+            self._check_state_finite()
+        w.raw_valid = True
+        if w.world_skeletons is None or \
+                self.world.getNumSkeletons() != len(w.world_skeletons) + len(views) + w.no_dofs:
+            # (again if the world gained or lost skeletons since the stepper was built)
+            mine = {rec.skeleton.getName() for rec in self.scene.skeletons}
+            every = [self.world.getSkeleton(i) for i in range(self.world.getNumSkeletons())]
+            w.world_skeletons = [x for x in every if x.getName() not in mine and x.getNumDofs() > 0]
+            w.no_dofs = sum(1 for x in every if x.getNumDofs() == 0)
+        return adapter.snapshot(self.world, w.world_skeletons, views)
+
     def _check_state_finite(self):
         """Refuse, before anything is touched, a state DART accepts but no step can use."""
         gravity = np.asarray(self.world.getGravity(), float)
@@ -359,11 +394,20 @@ class ImplicitContactStepper:
     def _one_step(self, h, keep=frozenset()) -> StepReport:
         """One step of h; keep: candidate pairs the far-pair filter must not leave out."""
         t0 = self.world.getTime()
+        if not keep:
+            report = self._repeat_step(h, t0)
+            if report is not None:
+                return report
         state = self._read(h)
         candidates = self._candidates(state, keep)
-        pairs, far = self._far_pairs(sorted(candidates), state.v_free, h, keep)
+        ordered = sorted(candidates)
+        pairs, far = self._far_pairs(ordered, state.v_free, h, keep)
+        self._ctx = None
         if not pairs and not self._supports:
-            return self._free_step(state, far, keep, t0)
+            report = self._free_step(state, far, keep, t0)
+            if report.success and not keep:
+                self._ctx = self._context(h, ordered, pairs, None, None)
+            return report
         att = self._specs(pairs, state)
         problem, result = self._solve_step(att, state)
         if not result.success:
@@ -387,19 +431,126 @@ class ImplicitContactStepper:
         self._last_support = {sp.key: (result.x[ss.y].copy(), float(result.x[ss.sigma]),
                                        problem.support_wrench(result.x, s))
                               for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
+        if not keep:
+            self._ctx = self._context(h, ordered, pairs, problem, att)
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, problem.layout.n)
 
+    # -- a step that repeats the last one's structure ---------------------------------------------
+    def _context(self, h, candidates, pairs, problem, att) -> "_Context":
+        """What a committed step leaves for _repeat_step: its candidates, which of them it solved,
+        the known lower bounds of their gaps for the next far-pair test (_known_gap), its problem
+        and solve-loop state, the fixed bodies' poses."""
+        w = self._world
+        P = np.array(candidates, dtype=np.int64).reshape(-1, 2)
+        near = set(pairs)
+        mask = np.array([pair in near for pair in candidates], np.bool_)
+        gaps = np.array([_nan_if_none(self._known_gap(i, j)) for i, j in candidates])
+        source = None
+        eligible = np.array([self._gap_bound_applies(i, j) for i, j in pairs], np.bool_)
+        if problem is not None:
+            source = next(c[3] for c in self._problems.values() if c[0] is problem)
+        return _Context(h, P, mask, gaps, problem, att, source, w.R_given[w.fixed].copy(), w.p_given[w.fixed].copy(),
+                        eligible)
+
+    def _repeat_step(self, h, t0) -> StepReport | None:
+        """The step when it repeats the last one's structure: the same candidate pairs, the same
+        ones left out as far, the same rows (friction rows where they were), fixed bodies where
+        they were, no recovery needed. Then the last step's problem is refreshed in place and its
+        solution carried over by kernels (memory.carry_pairs, memory.warm_start) instead of being
+        rebuilt pair by pair; the mathematics is _one_step's (tests/test_repeat_step.py checks
+        the trajectories are the same bitwise). None when anything differs or a check of
+        _one_step would act: _one_step then takes the step from the start."""
+        ctx = self._ctx
+        if ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons():
+            return None
+        w = self._world
+        state = self._read(h)
+        if len(w.fixed) and not (np.array_equal(w.R_given[w.fixed], ctx.R_fixed)
+                                 and np.array_equal(w.p_given[w.fixed], ctx.p_fixed)):
+            return None
+        tol = self.options.contact_tolerance
+        P = self._candidate_array(state)
+        if not np.array_equal(P, ctx.candidates):
+            return None
+        far = np.zeros(len(P), np.bool_)
+        if self.options.skip_far_pairs:
+            sk.far_test(P, ctx.gaps, w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff, w.VF, h, tol, far)
+        if not np.array_equal(~far, ctx.near):
+            return None
+        Pf = P[far]
+        left = np.empty(len(Pf))
+        if ctx.problem is None:
+            if self._supports:
+                return None
+            if len(Pf) and sk.far_after(Pf, ctx.gaps[far], w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff,
+                                        w.VF, h, tol, left):
+                return None
+            self._commit(state, state.v_free)
+            self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g)
+                         for (i, j), g in zip(Pf, left)}
+            ctx.gaps[far] = left
+            return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
+        problem, att = ctx.problem, ctx.att
+        memory = self._last
+        t = problem.tables
+        if len(memory) != len(t.pair_i) or \
+                not carry_pairs(t.pair_i, t.pair_f, memory.pair_i, memory.pair_f, memory.z, memory.rep, _TOUCH,
+                                _AXIS_LIMIT):
+            return None
+        problem.fill(h, ctx.source)
+        lay = problem.layout
+        v_free = np.zeros(lay.n)
+        for k, s in enumerate(att.involved):
+            v_free[lay.v_index[k]] = state.v_free[s]
+        z0 = np.zeros(lay.n)
+        memory_warm_start(t.pair_i, t.pair_f, t.body_i, t.body_f, t.body_jac, t.sk_i, t.v0, v_free,
+                          ctx.identity, memory.pair_i, memory.pair_f, memory.z, memory.rep, False, h, z0)
+        for sp, ss in zip(problem.supports, lay.supports):
+            last = self._last_support.get(sp.key)
+            if last is None or len(last[0]) != ss.y.stop - ss.y.start:
+                return None
+            z0[ss.y], z0[ss.sigma] = last[0], last[1]
+        result = self._solve(problem, z0, sync=False)
+        if not result.success or np.any(problem.checks(result.x, tol, self.options.solver.tol, _TOUCH)):
+            return None
+        x = result.x
+        V_solved = w.VF.copy()
+        v_solved = list(state.v_free)
+        for k, s in enumerate(att.involved):
+            v_solved[s] = x[lay.v_index[k]]
+            V_solved[w.sk_voff[s]:w.sk_voff[s] + w.sk_nv[s]] = v_solved[s]
+        if len(Pf) and sk.far_after(Pf, ctx.gaps[far], w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff,
+                                    V_solved, h, tol, left):
+            return None
+        if sk.moved_beyond_margins(w.ob_body, w.ob_radius, w.ob_bounded, w.bd_kind, w.bd_sk, w.sk_voff, V_solved,
+                                   w.VF, state.margins, h, tol):
+            return None
+        self._commit(state, v_solved)
+        self._last = memory.carried(problem, x)
+        self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g) for (i, j), g in zip(Pf, left)}
+        self._last_support = {sp.key: (x[ss.y].copy(), float(x[ss.sigma]), problem.support_wrench(x, s))
+                              for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
+        ctx.gaps[far] = left
+        near_gaps = np.empty(len(att.specs))
+        known_gaps(self._last.pair_i, self._last.z, self._last.rep, ctx.eligible, tol, near_gaps)
+        ctx.gaps[~far] = near_gaps
+        contacts = _LazyContacts(self, problem, x.copy(), att.specs)
+        return StepReport(True, result.iterations, result.residual, result.status.name, contacts, t0 + h, 1,
+                          result.message, lay.n)
+
     def _read(self, h) -> "_StepState":
-        """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_skeleton) and
+        """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_dynamics) and
         the poses of fixed and articulated bodies, into the world buffers; then (step_kernels) the
         free-flight velocities v + h M^-1 force, every body's pose now and after a free step, and
         each piece's motion margin for the broadphase."""
         scene, w = self.scene, self._world
         for s, rec in enumerate(scene.skeletons):
             o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
-            adapter.read_skeleton(rec, h, w.Q[o:o + k], w.V[o:o + k], w.MB[mo:mo + k * k].reshape(k, k),
-                                  w.FB[o:o + k])
+            if not w.raw_valid:
+                adapter.read_raw(rec, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k])
+            adapter.read_dynamics(rec, h, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k],
+                                  w.MB[mo:mo + k * k].reshape(k, k), w.FB[o:o + k])
         for b in w.read_bodies:
             jo = w.bd_joff[b]
             J = w.JB[jo:jo + 6 * w.bd_nv[b]].reshape(6, w.bd_nv[b]) if w.bd_kind[b] == sk.ARTICULATED else None
@@ -415,19 +566,7 @@ class ImplicitContactStepper:
             # the "midpoint" quasi-rigid scheme: poses half a step on at v (see _problem)
             sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.V, 0.5 * h, w.R_given, w.p_given,
                           w.JB, w.R_half, w.p_half, w.th_half)
-        states, v_free = [], []
-        for s, rec in enumerate(scene.skeletons):
-            o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
-            first = rec.body_index
-            bodies = {b: (w.R_now[b], w.p_now[b], w.JB[w.bd_joff[b]:w.bd_joff[b] + 6 * k].reshape(6, k))
-                      for b in rec.body_indices} if rec.kind == adapter.ARTICULATED else {}
-            states.append(adapter.SkeletonState(w.Q[o:o + k], w.V[o:o + k], w.MB[mo:mo + k * k].reshape(k, k),
-                                                w.FB[o:o + k], w.R_now[first] if first >= 0 else None,
-                                                w.p_now[first] if first >= 0 else None, bodies))
-            v_free.append(w.VF[o:o + k])
-        poses_now = {b: (w.R_now[b], w.p_now[b]) for b in range(len(scene.bodies))}
-        poses_pred = {b: (w.R_pred[b], w.p_pred[b]) for b in w.mobile}
-        return _StepState(h, states, v_free, poses_now, poses_pred, w.margins)
+        return _StepState(h, w.states, w.v_free, w.poses_now, w.poses_pred, w.margins)
 
     def _candidates(self, state, keep) -> frozenset:
         """Pairs of pieces whose boxes (now and after a free step, grown by their motion margins)
@@ -438,6 +577,11 @@ class ImplicitContactStepper:
         among the fat pairs coal returned last, so coal is not asked again; the exact closed
         overlap test of broadphase.py on the fat pairs gives the same candidates as a query on
         the grown boxes themselves."""
+        pairs = {(int(a), int(b)) for a, b in self._candidate_array(state)}
+        return frozenset(pairs | set(keep))
+
+    def _candidate_array(self, state) -> np.ndarray:
+        """The candidate pairs of _candidates as a sorted (n, 2) array (no kept pairs)."""
         w = self._world
         lo, hi = self._boxes(w.R_now, w.p_now, w.R_pred, w.p_pred, w.is_mobile)
         m = state.margins[:, None]
@@ -451,8 +595,7 @@ class ImplicitContactStepper:
         P = fat[2]
         ok = np.empty(len(P), np.bool_)
         sk.overlapping(P, glo, ghi, ok)
-        pairs = {(int(a), int(b)) for a, b in P[ok]}
-        return frozenset(pairs | set(keep))
+        return P[ok]
 
     def _allowed(self, i, j) -> bool:
         """Pieces that may touch: two bodies, not of one skeleton (no self-collision, DART's
@@ -471,11 +614,15 @@ class ImplicitContactStepper:
         w = self._world
         for k in w.unbounded:
             o = self._objects[k]
+            if not join[o.body] and w.exact_known[k] and np.array_equal(o._last[0], R1[o.body]) \
+                    and np.array_equal(o._last[1], p1[o.body]):
+                continue
             lo, hi = o.box((R1[o.body], p1[o.body]))
             if join[o.body]:
                 l2, h2 = o.box((R2[o.body], p2[o.body]))
                 lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
             w.exact_lo[k], w.exact_hi[k] = lo, hi
+            w.exact_known[k] = not join[o.body]
         lo, hi = np.empty((len(self._objects), 3)), np.empty((len(self._objects), 3))
         sk.piece_boxes(w.ob_body, w.ob_bounded, w.ob_dim, w.ob_centre, w.ob_half, w.exact_lo, w.exact_hi,
                        R1, p1, R2, p2, join, lo, hi)
@@ -568,6 +715,7 @@ class ImplicitContactStepper:
 
     def _commit(self, state, velocities):
         """Write v+ and let DART integrate q+ = q (+) h v+ for every mobile skeleton."""
+        self._world.raw_valid = False
         midpoint = self._trapezoidal_skeletons()
         for s, rec in enumerate(self.scene.skeletons):
             adapter.write_velocities_and_integrate(rec, velocities[s], state.states[s].v, state.h,
@@ -649,25 +797,31 @@ class ImplicitContactStepper:
         after = [p for p in self._broadphase.candidates(lo, hi, 10.0 * tol) if self._allowed(*p)]
         return frozenset(p for p in after if p not in candidates)
 
-    def _known_gap(self, i, j):
-        """A lower bound of the gap of candidate pair (i, j) now, or None (see _far_pairs)."""
+    def _gap_bound_applies(self, i, j) -> bool:
+        """Whether pair (i, j) may be left out as far (_far_pairs): rigid, of single-body free,
+        planar or fixed skeletons, with known piece radii."""
         oi, oj = self._objects[i], self._objects[j]
         if oi.compliance is not None or oj.compliance is not None:
-            return None
+            return False
         bi, bj = self.scene.bodies[oi.body], self.scene.bodies[oj.body]
         if any(b.kind not in (adapter.FREE, adapter.PLANAR, adapter.FIXED) for b in (bi, bj)):
-            return None
+            return False
         if frozenset((bi.index, bj.index)) in self._pair_compliance:
+            return False
+        return not any(o.radius is None and self.scene.bodies[o.body].kind != adapter.FIXED for o in (oi, oj))
+
+    def _known_gap(self, i, j):
+        """A lower bound of the gap of candidate pair (i, j) now, or None (see _far_pairs)."""
+        if not self._gap_bound_applies(i, j):
             return None
-        if any(o.radius is None and self.scene.bodies[o.body].kind != adapter.FIXED for o in (oi, oj)):
-            return None
+        oi, oj = self._objects[i], self._objects[j]
         last = self._last.get((oi.key, oj.key)) or self._last.get((oj.key, oi.key))
         if last is not None:
             return last["distance"] - 10.0 * self.options.contact_tolerance if last["p_n"] == 0.0 else None
         return self._far.get(frozenset((oi.key, oj.key)))
 
     # -- pieces of a step ------------------------------------------------------------------------
-    def _solve(self, problem, z0):
+    def _solve(self, problem, z0, sync=True):
         """step_solver.solve (compiled, polished; see there), with the retry policy's budget."""
         opts = self.options.solver
         if self._retrying:
@@ -675,7 +829,7 @@ class ImplicitContactStepper:
             # ground converges in ~100 LM iterations); give them a larger budget
             opts = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
         try:
-            return step_solver.solve(problem, z0, opts)
+            return step_solver.solve(problem, z0, opts, sync)
         except (ZeroDivisionError, FloatingPointError, OverflowError, ValueError) as exc:
             if isinstance(exc, ValueError) and "math domain" not in str(exc):
                 raise
@@ -765,9 +919,8 @@ class ImplicitContactStepper:
         if dim == 3 and last is not None:
             # the tangents come from Gram-Schmidt on a fixed axis; keep the axis while the normal
             # stays far from it, else take a new one (the warm start rotates the friction along)
-            axis = last["axis"]
-            if axis is None or abs(float(axis @ last["normal"])) > _AXIS_LIMIT:
-                axis = fm._least_aligned_axis(last["normal"])
+            axis = np.empty(3)
+            choose_axis(last["axis"], last["normal"], _AXIS_LIMIT, axis)
         k1 = last["k1"] if last is not None else 0
         compliance = self._pair_compliance.get(frozenset((b1.index, b2.index)),
                                                Compliance.series(first.compliance, second.compliance))
@@ -964,9 +1117,15 @@ class _World:
             reach.append(r)
         self.ob_reach = np.array(reach, float)
         self.unbounded = [k for k, o in enumerate(objects) if o.local_box is None]
+        self.fixed = np.array([b.index for b in bodies if b.kind == adapter.FIXED], np.int64)
         self.ob_radius = np.array([o.radius if o.radius is not None else 0.0 for o in objects], float)
         self.exact_lo, self.exact_hi = np.zeros((no, 3)), np.zeros((no, 3))
+        self.exact_known = np.zeros(no, np.bool_)     # exact_lo/hi hold the box at the piece's last pose
         self.Q, self.V, self.FB, self.VF = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
+        self.TAU, self.FEXT, self.DV = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
+        self.raw_valid = False      # Q, V, TAU, FEXT hold the world as it is now (read by _begin)
+        self.world_skeletons = None  # the world's other skeletons with dofs (for snapshots)
+        self.no_dofs = 0
         self.MB = np.zeros(max(nM, 1))
         self.JB = np.zeros(max(at, 1))
         self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
@@ -974,6 +1133,77 @@ class _World:
         self.R_pred, self.p_pred, self.th_pred = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.R_half, self.p_half, self.th_half = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.margins = np.zeros(no)
+        # the step state's views of these buffers (_StepState), made once
+        self.states, self.v_free = [], []
+        for s, rec in enumerate(scene.skeletons):
+            o, k, mo = self.sk_voff[s], self.sk_nv[s], self.sk_moff[s]
+            first = rec.body_index
+            arts = {b: (self.R_now[b], self.p_now[b], self.JB[self.bd_joff[b]:self.bd_joff[b] + 6 * k].reshape(6, k))
+                    for b in rec.body_indices} if rec.kind == adapter.ARTICULATED else {}
+            self.states.append(adapter.SkeletonState(
+                self.Q[o:o + k], self.V[o:o + k], self.MB[mo:mo + k * k].reshape(k, k), self.FB[o:o + k],
+                self.R_now[first] if first >= 0 else None, self.p_now[first] if first >= 0 else None, arts))
+            self.v_free.append(self.VF[o:o + k])
+        self.poses_now = {b: (self.R_now[b], self.p_now[b]) for b in range(nb)}
+        self.poses_pred = {b: (self.R_pred[b], self.p_pred[b]) for b in self.mobile}
+
+
+@dataclass
+class _Context:
+    """What a committed step leaves for the next one's _repeat_step (see _context)."""
+    h: float
+    candidates: np.ndarray     # (nc, 2) candidate piece pairs, sorted
+    near: np.ndarray           # which of them the step solved (the others were far)
+    gaps: np.ndarray           # per candidate: a known lower bound of its gap now (NaN: none)
+    problem: object            # the step's StepProblem (None: no pair was near)
+    att: object                # its solve loop's state (specs, skeletons, bodies)
+    source: tuple              # the problem's world-buffer source (rows/tables.fill_state)
+    R_fixed: np.ndarray        # the fixed bodies' poses it was built with
+    p_fixed: np.ndarray
+    eligible: np.ndarray       # per solved pair: whether a known gap can leave it out (_gap_bound_applies)
+
+    @property
+    def identity(self) -> np.ndarray:
+        """Memory row of every pair: its own (the pairs persist in the same rows)."""
+        rows = self.__dict__.get("_identity")
+        if rows is None:
+            rows = self.__dict__["_identity"] = np.arange(len(self.att.specs), dtype=np.int64)
+        return rows
+
+
+class _LazyContacts(Sequence):
+    """A step's contact reports, made when first read (a step that nobody inspects pays nothing)."""
+
+    def __init__(self, stepper, problem, z, specs):
+        self._args = (stepper, problem, z, specs)
+        self._items = None
+        self._rep = problem._rep.copy()
+
+    def _made(self):
+        if self._items is None:
+            stepper, problem, z, specs = self._args
+            saved = problem._rep.copy(), problem._rep_at, problem._reports_np
+            problem._rep[:] = self._rep          # the reports of this step's solution
+            problem._rep_at, problem._reports_np = z, None
+            try:
+                self._items = tuple(stepper._contact_report(problem, z, k, spec, problem.unpack_pair(z, k))
+                                    for k, spec in enumerate(specs))
+            finally:
+                problem._rep[:], problem._rep_at, problem._reports_np = saved
+            self._args = None
+        return self._items
+
+    def __getitem__(self, k):
+        return self._made()[k]
+
+    def __len__(self):
+        return len(self._rep)
+
+    def __eq__(self, other):
+        return tuple(self._made()) == (tuple(other) if isinstance(other, (tuple, list, Sequence)) else other)
+
+    def __repr__(self):
+        return repr(self._made())
 
 
 @dataclass

@@ -1,0 +1,100 @@
+"""A step that repeats the last one's structure (ImplicitContactStepper._repeat_step) is the same step.
+
+_repeat_step refreshes the last step's problem in place and carries its solution over with
+kernels instead of rebuilding it pair by pair through _one_step; the mathematics must be the
+same. Each scene is stepped twice, with the repeat path and with it switched off: positions,
+velocities and the solver's iteration counts must agree bit for bit at every step, and the
+repeat path must have taken most steps (else this test would test nothing).
+"""
+import numpy as np
+import pytest
+
+import implicit_contact as ic
+from scenes import disc_on_quasi_rigid_plane as quasi
+from scenes import disc_rolling, ellipsoid_rocking
+from scenes import sphere_on_two_spheres as spheres
+from test_articulated import _pendulum_world
+from test_rigid3d import _dart_box, _ground, _world
+from test_support import _stepper as _support_stepper, _world as _support_world
+
+MIN_REPEATED = 0.5     # fraction of the steps the repeat path must take in these steady scenes
+
+
+def _disc():
+    world = disc_rolling.build_world(0.01)
+    return world, ic.ImplicitContactStepper(world), None
+
+
+def _spheres():
+    world = spheres.build_world(0.01)
+    stepper = ic.ImplicitContactStepper(world)
+    ball = world.getSkeleton("ball").getBodyNode(0)
+    for name in ("sphere_r10", "sphere_r9"):
+        stepper.set_pair_friction(ball, world.getSkeleton("fixed_spheres").getBodyNode(name), spheres.FRICTION)
+    return world, stepper, lambda: spheres.push(world, 0.0)
+
+
+def _ellipsoid():
+    world = ellipsoid_rocking.build_world(2e-3)
+    return world, ic.ImplicitContactStepper(world), None
+
+
+def _sliding_box():
+    world = _world(2e-3)
+    _ground(world, mu=0.3)
+    _dart_box(world, [0.4, 0.3, 0.2], 0.3, [0.0, 0.0, 0.1 + 1e-9], velocity=[0.0, 0.0, 0.0, 1.5, 0.0, 0.0])
+    return world, ic.ImplicitContactStepper(world), None
+
+
+def _quasi_rigid():
+    world = quasi.build_world(1.0, h=1e-3)
+    return world, ic.ImplicitContactStepper(world), None
+
+
+def _pendulum():
+    world, _, _, _ = _pendulum_world(1e-3)
+    return world, ic.ImplicitContactStepper(world), None
+
+
+def _support():
+    world, body, _ = _support_world(v0=(0.4, 0.1, 2.0))
+    return world, _support_stepper(world, body), None
+
+
+SCENES = {"disc": (_disc, 150), "spheres": (_spheres, 150), "ellipsoid": (_ellipsoid, 150),
+          "sliding box": (_sliding_box, 150), "quasi-rigid disc": (_quasi_rigid, 600),
+          "pendulum on an obstacle": (_pendulum, 600), "support friction": (_support, 100)}
+
+
+def _run(make, steps, repeat):
+    world, stepper, before = make()
+    taken = [0]
+    if repeat:
+        original = stepper._repeat_step
+
+        def counting(h, t0):
+            report = original(h, t0)
+            taken[0] += report is not None
+            return report
+        stepper._repeat_step = counting
+    else:
+        stepper._repeat_step = lambda h, t0: None
+    skeletons = [world.getSkeleton(i) for i in range(world.getNumSkeletons())]
+    states, iterations = [], []
+    for _ in range(steps):
+        if before is not None:
+            before()
+        report = stepper.step()
+        iterations.append(report.iterations)
+        states.append(np.concatenate([np.r_[s.getPositions(), s.getVelocities()] for s in skeletons]))
+    return np.array(states), iterations, taken[0]
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_repeat_path_steps_bit_for_bit_as_the_general_path(name):
+    make, steps = SCENES[name]
+    fast, it_fast, taken = _run(make, steps, repeat=True)
+    slow, it_slow, _ = _run(make, steps, repeat=False)
+    assert taken >= MIN_REPEATED * steps, f"the repeat path took {taken} of {steps} steps"
+    np.testing.assert_array_equal(fast, slow)
+    assert it_fast == it_slow
