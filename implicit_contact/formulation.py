@@ -218,8 +218,9 @@ class StepProblem:
         self._rep = np.zeros((len(specs), rc.NREP))
         t = self.tables
         nb = len(bodies)
+        wsize = max([1] + [rc.workspace_size(int(p[rc.P_M1]), int(p[rc.P_M2]), int(p[rc.P_NBLK])) for p in t.pair_i])
         self._work = (np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)),
-                      np.zeros((nb, 12, t.kmax)), np.zeros(t.lmax), np.zeros((t.lmax, t.lmax)))
+                      np.zeros((nb, 12, t.kmax)), np.zeros(t.lmax), np.zeros((t.lmax, t.lmax)), np.zeros(wsize))
         self.refresh(h, skeletons, bodies, specs, supports, source)
 
     # -- the tables ---------------------------------------------------------------------------
@@ -469,10 +470,10 @@ class StepProblem:
         else:
             slots, slot_off, dscale, data = _EMPTY_I, np.zeros(len(t.loc_off), np.int64), _EMPTY, _EMPTY
             J = np.empty((n, n)) if need_jac else _EMPTY2
-        R, p, w, vo, T, FL, JL = self._work
+        R, p, w, vo, T, FL, JL, ws = self._work
         assemble(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
                  t.sup_i, t.sup_f, t.loc_idx, t.loc_off, slots, slot_off, t.scale, dscale, z, F, J, data,
-                 self._rep, R, p, w, vo, T, FL, JL, need_jac, sparse)
+                 self._rep, R, p, w, vo, T, FL, JL, ws, need_jac, sparse)
         self._rep_at, self._reports_np = z.copy(), None
         if not need_jac:
             return F, None

@@ -61,59 +61,67 @@ def pack(code: int, dim: int, center=None, rotation=None, semi_axes=None, n1=2.0
 
 
 @kernel
-def _local_power(par, xl, gl, Hl, order):
-    """Single-exponent power sum in its local frame (the superquadric / superellipse)."""
+def _local_power(par, X0, X1, X2, order):
+    """Single-exponent power sum in its local frame (the superquadric / superellipse), at the
+    local point (X0, X1, X2): (f, local gradient (3), local Hessian diagonal (3))."""
     dim = int(par[DIM])
     q, s = par[N1], par[S]
     k = s / q
     v = 0.0
+    g0 = g1 = g2 = h0 = h1 = h2 = 0.0
     for i in range(dim):
         a = par[AX + i]
-        X = xl[i] / a
-        A = abs(X)
+        x = (X0 if i == 0 else (X1 if i == 1 else X2)) / a
+        A = abs(x)
         A1 = A ** (q - 1.0)
         v += A1 * A
-        if order >= 1:
-            gl[i] = k * q * (A1 if X >= 0.0 else -A1) / a
-        if order >= 2:
-            Hl[i, i] = k * q * (q - 1.0) * A ** (q - 2.0) / (a * a)
-    return k * (v - 1.0)
+        gi = k * q * (A1 if x >= 0.0 else -A1) / a if order >= 1 else 0.0
+        hi = k * q * (q - 1.0) * A ** (q - 2.0) / (a * a) if order >= 2 else 0.0
+        if i == 0:
+            g0, h0 = gi, hi
+        elif i == 1:
+            g1, h1 = gi, hi
+        else:
+            g2, h2 = gi, hi
+    return k * (v - 1.0), g0, g1, g2, h0, h1, h2
 
 
 @kernel
-def _local_barr(par, xl, gl, Hl, order):
-    """Barr's superquadric in its local frame: g = w^n1 + |Z|^n1, w = (|X|^n2 + |Y|^n2)^(1/n2)."""
+def _local_barr(par, X0, X1, X2, order):
+    """Barr's superquadric in its local frame: g = w^n1 + |Z|^n1, w = (|X|^n2 + |Y|^n2)^(1/n2).
+    Returns (f, local gradient (3), local Hessian xx, yy, xy, zz)."""
     q, p, s = par[N1], par[N2], par[S]
     a0, a1, a2 = par[AX], par[AX + 1], par[AX + 2]
-    X, Y, Z = xl[0] / a0, xl[1] / a1, xl[2] / a2
+    X, Y, Z = X0 / a0, X1 / a1, X2 / a2
     AX_, AY, AZ = abs(X), abs(Y), abs(Z)
     w = (AX_ ** p + AY ** p) ** (1.0 / p)
     rx = AX_ / w if w > 0.0 else 0.0
     ry = AY / w if w > 0.0 else 0.0
     k = s / q
     v = w ** q + AZ ** q
+    g0 = g1 = g2 = hxx = hyy = hxy = hzz = 0.0
     if order >= 1:
         wq1 = w ** (q - 1.0)
         sx = 1.0 if X > 0.0 else (-1.0 if X < 0.0 else 0.0)
         sy = 1.0 if Y > 0.0 else (-1.0 if Y < 0.0 else 0.0)
         sz = 1.0 if Z > 0.0 else (-1.0 if Z < 0.0 else 0.0)
-        gl[0] = k * q * wq1 * rx ** (p - 1.0) * sx / a0
-        gl[1] = k * q * wq1 * ry ** (p - 1.0) * sy / a1
-        gl[2] = k * q * AZ ** (q - 1.0) * sz / a2
+        g0 = k * q * wq1 * rx ** (p - 1.0) * sx / a0
+        g1 = k * q * wq1 * ry ** (p - 1.0) * sy / a1
+        g2 = k * q * AZ ** (q - 1.0) * sz / a2
         if order >= 2:
             wq2 = w ** (q - 2.0)
-            Hl[0, 0] = k * q * wq2 * ((q - p) * rx ** (2.0 * p - 2.0) + (p - 1.0) * rx ** (p - 2.0)) / (a0 * a0)
-            Hl[1, 1] = k * q * wq2 * ((q - p) * ry ** (2.0 * p - 2.0) + (p - 1.0) * ry ** (p - 2.0)) / (a1 * a1)
-            Hl[0, 1] = Hl[1, 0] = k * q * (q - p) * wq2 * rx ** (p - 1.0) * ry ** (p - 1.0) * sx * sy / (a0 * a1)
-            Hl[2, 2] = k * q * (q - 1.0) * AZ ** (q - 2.0) / (a2 * a2)
-    return k * (v - 1.0)
+            hxx = k * q * wq2 * ((q - p) * rx ** (2.0 * p - 2.0) + (p - 1.0) * rx ** (p - 2.0)) / (a0 * a0)
+            hyy = k * q * wq2 * ((q - p) * ry ** (2.0 * p - 2.0) + (p - 1.0) * ry ** (p - 2.0)) / (a1 * a1)
+            hxy = k * q * (q - p) * wq2 * rx ** (p - 1.0) * ry ** (p - 1.0) * sx * sy / (a0 * a1)
+            hzz = k * q * (q - 1.0) * AZ ** (q - 2.0) / (a2 * a2)
+    return k * (v - 1.0), g0, g1, g2, hxx, hyy, hxy, hzz
 
 
 @kernel
 def evaluate(par, x, g, H, order):
     """f(x) of the function ``par`` at the body-frame point x (3,); order >= 1 writes its
     gradient into g (3,), order >= 2 its Hessian into H (3, 3) (both body frame, z entries zero
-    for 2D functions). Returns f."""
+    for 2D functions). Returns f. Allocates nothing (it runs for every pair row evaluation)."""
     code = int(par[CODE])
     dim = int(par[DIM])
     if code == PLANE:
@@ -145,54 +153,47 @@ def evaluate(par, x, g, H, order):
                     H[i, j] = 1.0 / r if (i == j and i < dim) else 0.0
         return (sq - r * r) / (2.0 * r)
     # local coordinates xl = R0^T (x - c0)
-    xl = np.zeros(3)
-    for j in range(3):
-        acc = 0.0
-        for i in range(dim):
-            acc += par[R0 + 3 * i + j] * (x[i] - par[C0 + i])
-        xl[j] = acc if j < dim else 0.0
-    gl = np.zeros(3)
-    Hl = np.zeros((3, 3))
+    d0 = x[0] - par[C0]
+    d1 = x[1] - par[C0 + 1]
+    d2 = x[2] - par[C0 + 2] if dim == 3 else 0.0
+    X0 = par[R0] * d0 + par[R0 + 3] * d1 + par[R0 + 6] * d2
+    X1 = par[R0 + 1] * d0 + par[R0 + 4] * d1 + par[R0 + 7] * d2
+    X2 = par[R0 + 2] * d0 + par[R0 + 5] * d1 + par[R0 + 8] * d2 if dim == 3 else 0.0
+    # the local gradient (l0, l1, l2) and Hessian (diagonal, plus xy for Barr's form)
+    hxy = 0.0
     if code == ELLIPSOID:
-        s = par[S]
-        v = 0.0
-        for i in range(dim):
-            a = par[AX + i]
-            X = xl[i] / a
-            v += X * X
-            gl[i] = s * X / a
-            Hl[i, i] = s / (a * a)
-        v = 0.5 * s * (v - 1.0)
+        sc = par[S]
+        a0, a1 = par[AX], par[AX + 1]
+        a2 = par[AX + 2] if dim == 3 else 1.0
+        Y0, Y1, Y2 = X0 / a0, X1 / a1, X2 / a2
+        v = 0.5 * sc * (Y0 * Y0 + Y1 * Y1 + Y2 * Y2 - 1.0)
+        l0, l1, l2 = sc * Y0 / a0, sc * Y1 / a1, sc * Y2 / a2
+        h0, h1 = sc / (a0 * a0), sc / (a1 * a1)
+        h2 = sc / (a2 * a2) if dim == 3 else 0.0
     elif code == POWER:
-        v = _local_power(par, xl, gl, Hl, order)
+        v, l0, l1, l2, h0, h1, h2 = _local_power(par, X0, X1, X2, order)
     elif code == BARR:
-        v = _local_barr(par, xl, gl, Hl, order)
+        v, l0, l1, l2, h0, h1, hxy, h2 = _local_barr(par, X0, X1, X2, order)
     else:  # CYLINDER
         r = par[RADIUS]
-        v = (xl[0] * xl[0] + xl[1] * xl[1] - r * r) / (2.0 * r)
-        gl[0], gl[1] = xl[0] / r, xl[1] / r
-        Hl[0, 0] = Hl[1, 1] = 1.0 / r
+        v = (X0 * X0 + X1 * X1 - r * r) / (2.0 * r)
+        l0, l1, l2 = X0 / r, X1 / r, 0.0
+        h0 = h1 = 1.0 / r
+        h2 = 0.0
     # back to the body frame: g = R0 gl, H = R0 Hl R0^T
     if order >= 1:
         for i in range(3):
-            acc = 0.0
-            for j in range(3):
-                acc += par[R0 + 3 * i + j] * gl[j]
-            g[i] = acc
+            g[i] = par[R0 + 3 * i] * l0 + par[R0 + 3 * i + 1] * l1 + par[R0 + 3 * i + 2] * l2
     if order >= 2:
-        T = np.zeros((3, 3))
         for i in range(3):
-            for j in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += par[R0 + 3 * i + k] * Hl[k, j]
-                T[i, j] = acc
-        for i in range(3):
-            for j in range(3):
-                acc = 0.0
-                for k in range(3):
-                    acc += T[i, k] * par[R0 + 3 * j + k]
-                H[i, j] = acc
+            ri0, ri1, ri2 = par[R0 + 3 * i], par[R0 + 3 * i + 1], par[R0 + 3 * i + 2]
+            t0 = ri0 * h0 + ri1 * hxy
+            t1 = ri0 * hxy + ri1 * h1
+            t2 = ri2 * h2
+            for j in range(i, 3):
+                hij = t0 * par[R0 + 3 * j] + t1 * par[R0 + 3 * j + 1] + t2 * par[R0 + 3 * j + 2]
+                H[i, j] = hij
+                H[j, i] = hij
     return v
 
 

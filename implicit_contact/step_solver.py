@@ -28,7 +28,7 @@ from .rows.assemble import assemble
 @kernel
 def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
-                 history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL):
+                 history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws):
     """One solve of a dense step problem; the outcome in the ncp buffers, the pairs' reports at
     the final iterate in rep."""
     no_i = np.zeros(0, np.int64)
@@ -40,11 +40,11 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
         if req == ncp.REQ_F:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
-                     st_R, st_p, st_w, st_vo, st_T, FL, JL, False, False)
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, False, False)
         elif req == ncp.REQ_J:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
-                     st_R, st_p, st_w, st_vo, st_T, FL, JL, True, False)
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, True, False)
             bad = 0
             for i in range(J.shape[0]):
                 for j in range(J.shape[1]):
@@ -63,7 +63,7 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
     if np.isfinite(fbuf[ncp.F_RESIDUAL]):
         assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
-                 st_R, st_p, st_w, st_vo, st_T, FL, JL, False, False)
+                 st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, False, False)
 
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
@@ -84,11 +84,11 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
                      ncp.options_array(options))
     buf, J, H, opt = held[key]
     t = problem.tables
-    R, p, w, vo, T, FL, JL = problem._work
+    R, p, w, vo, T, FL, JL, ws = problem._work
     _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
                  t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, problem.lower, problem.upper, opt,
                  buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
-                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL, JL)
+                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL, JL, ws)
     result = ncp.result_from_buffers(buf, options)
     problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
     return result

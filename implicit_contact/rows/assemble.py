@@ -45,8 +45,9 @@ def _scatter(idx, base, L, FL, JL, F, J, data, slots, slot_base, need_jac, spars
 @kernel
 def assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
              loc_idx, loc_off, slots, slot_off, scale, data_scale, z, F, J, data, rep,
-             st_R, st_p, st_w, st_vo, st_T, FL, JL, need_jac, sparse):
-    """F (and J or its sparse values) of the step at z; rep: the pairs' reports (contact.R_*)."""
+             st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, need_jac, sparse):
+    """F (and J or its sparse values) of the step at z; rep: the pairs' reports (contact.R_*);
+    ws: the pair rows' workspace (contact.workspace_size of the largest pair)."""
     body_states(body_i, body_f, body_jac, z, st_R, st_p, st_w, st_vo, st_T)
     n = F.shape[0]
     for i in range(n):
@@ -67,7 +68,7 @@ def assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pai
         plan += 1
     for k in range(pair_i.shape[0]):
         L = loc_off[plan + 1] - loc_off[plan]
-        pair_rows(pair_i[k], pair_f[k], fpar, st_R, st_p, st_w, st_vo, st_T, z, FL, JL, rep[k], need_jac)
+        pair_rows(pair_i[k], pair_f[k], fpar, st_R, st_p, st_w, st_vo, st_T, z, FL, JL, rep[k], need_jac, ws)
         _scatter(loc_idx, loc_off[plan], L, FL, JL, F, J, data, slots, slot_off[plan], need_jac, sparse)
         plan += 1
     for s in range(sup_i.shape[0]):

@@ -218,37 +218,64 @@ def _tangent_derivatives(n, e, en, t, nu, o, Dt, Do):
     tn = t[0] * n[0] + t[1] * n[1] + t[2] * n[2]
     q0, q1, q2 = (n[0] - tn * t[0]) / nu, (n[1] - tn * t[1]) / nu, (n[2] - tn * t[2]) / nu
     k = en / nu
-    q = (q0, q1, q2)
     for i in range(3):
+        qi = q0 if i == 0 else (q1 if i == 1 else q2)
         for j in range(3):
-            Dt[i, j] = -q[i] * e[j] - k * ((1.0 if i == j else 0.0) - t[i] * t[j])
+            Dt[i, j] = -qi * e[j] - k * ((1.0 if i == j else 0.0) - t[i] * t[j])
     w0, w1, w2 = n[1] * q2 - n[2] * q1, n[2] * q0 - n[0] * q2, n[0] * q1 - n[1] * q0
-    wv = (w0, w1, w2)
-    # do/dn = -[t]x - (n x q) e^T - k ([n]x - o t^T)
-    St = np.zeros((3, 3))
-    Sn = np.zeros((3, 3))
-    _skew(t, St)
-    _skew(n, Sn)
+    # do/dn = -[t]x - (n x q) e^T - k ([n]x - o t^T); [v]x = [[0, -v2, v1], [v2, 0, -v0], [-v1, v0, 0]]
     for i in range(3):
+        wi = w0 if i == 0 else (w1 if i == 1 else w2)
         for j in range(3):
-            Do[i, j] = -St[i, j] - wv[i] * e[j] - k * (Sn[i, j] - o[i] * t[j])
+            if i == j:
+                st = 0.0
+                sn = 0.0
+            elif (i, j) == (0, 1):
+                st, sn = -t[2], -n[2]
+            elif (i, j) == (0, 2):
+                st, sn = t[1], n[1]
+            elif (i, j) == (1, 0):
+                st, sn = t[2], n[2]
+            elif (i, j) == (1, 2):
+                st, sn = -t[0], -n[0]
+            elif (i, j) == (2, 0):
+                st, sn = -t[1], -n[1]
+            else:
+                st, sn = t[0], n[0]
+            Do[i, j] = -st - wi * e[j] - k * (sn - o[i] * t[j])
 
 
 @kernel
-def pair_rows(pi, pf, fpar, R, p, w, vo, T, z, FL, JL, rep, need_jac):
+def _take(ws, at, n):
+    """n zeroed floats of the workspace ws from at: (the view, the next free index)."""
+    v = ws[at:at + n]
+    for i in range(n):
+        v[i] = 0.0
+    return v, at + n
+
+
+def workspace_size(m1: int, m2: int, nblk: int) -> int:
+    """Floats of the workspace of one pair's _pair_rows (an upper bound of what it takes)."""
+    nv = nblk + NV_EXTRA
+    return 64 * 9 + 24 * (m1 + m2) + nv * (nblk + 12 * 3 + 1)
+
+
+@kernel
+def pair_rows(pi, pf, fpar, R, p, w, vo, T, z, FL, JL, rep, need_jac, ws):
     """One pair's rows and impulses at z (the bodies' states from bodies.body_states).
 
     FL (L,): the local residual [F of body 1's velocity rows, body 2's, the pair's own rows]
     (unscaled; the impulse entries are -Q_b); JL (L, L): its Jacobian over the same local
     indices, written when need_jac; rep (NREP,): a1, a2, n, t, o, gap, v_rel, w_rel.
-    L = kv1 + kv2 + nblk (pair_i columns P_KV1, P_KV2, P_NBLK)."""
+    L = kv1 + kv2 + nblk (pair_i columns P_KV1, P_KV2, P_NBLK); ws: a workspace of at least
+    workspace_size(m1, m2, nblk) floats."""
     b1, b2 = pi[P_B1], pi[P_B2]
     _pair_rows(pi, pf, fpar, R[b1], p[b1], w[b1], vo[b1], T[b1], R[b2], p[b2], w[b2], vo[b2], T[b2],
-               z, FL, JL, rep, need_jac)
+               z, FL, JL, rep, need_jac, ws)
 
 
 @kernel
-def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, JL, rep, need_jac):
+def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, JL, rep, need_jac, ws):
     d = pi[P_DIM]
     m1, m2 = pi[P_M1], pi[P_M2]
     f1o, f2o = pi[P_F1], pi[P_F2]
@@ -270,6 +297,7 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     L = ob + nblk
     nv = nblk + NV_EXTRA
     x0 = nblk
+    at = 0                                        # the next free float of the workspace ws
     for i in range(L):
         FL[i] = 0.0
     if need_jac:
@@ -278,8 +306,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
                 JL[i, j] = 0.0
 
     # -- the points, multipliers and impulses
-    a1 = np.zeros(3)
-    a2 = np.zeros(3)
+    a1, at = _take(ws, at, 3)
+    a2, at = _take(ws, at, 3)
     for i in range(3):
         acc1 = pf[Q_A01 + i]
         for c in range(na1):
@@ -298,21 +326,28 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     off2 = dbar if (comp != RIGID and side == 2) else 0.0
 
     # -- body functions: body 1 at a1 and a2, body 2 at a2
-    f1 = np.zeros(m1)
-    G1 = np.zeros((m1, 3))
-    H1 = np.zeros((m1, 3, 3))
-    f12 = np.zeros(m1)
-    G12 = np.zeros((m1, 3))
-    f2 = np.zeros(m2)
-    G2 = np.zeros((m2, 3))
-    H2 = np.zeros((m2, 3, 3))
-    r11 = np.zeros(3)
-    r12 = np.zeros(3)
-    r22 = np.zeros(3)
-    xi = np.zeros(3)
-    g = np.zeros(3)
-    H = np.zeros((3, 3))
-    Hdummy = np.zeros((3, 3))
+    f1, at = _take(ws, at, m1)
+    G1_flat, at = _take(ws, at, m1 * 3)
+    G1 = G1_flat.reshape((m1, 3))
+    H1_flat, at = _take(ws, at, m1 * 3 * 3)
+    H1 = H1_flat.reshape((m1, 3, 3))
+    f12, at = _take(ws, at, m1)
+    G12_flat, at = _take(ws, at, m1 * 3)
+    G12 = G12_flat.reshape((m1, 3))
+    f2, at = _take(ws, at, m2)
+    G2_flat, at = _take(ws, at, m2 * 3)
+    G2 = G2_flat.reshape((m2, 3))
+    H2_flat, at = _take(ws, at, m2 * 3 * 3)
+    H2 = H2_flat.reshape((m2, 3, 3))
+    r11, at = _take(ws, at, 3)
+    r12, at = _take(ws, at, 3)
+    r22, at = _take(ws, at, 3)
+    xi, at = _take(ws, at, 3)
+    g, at = _take(ws, at, 3)
+    H_flat, at = _take(ws, at, 3 * 3)
+    H = H_flat.reshape((3, 3))
+    Hdummy_flat, at = _take(ws, at, 3 * 3)
+    Hdummy = Hdummy_flat.reshape((3, 3))
     order = 2 if need_jac else 1
     for i in range(m1):
         f1[i] = _world_eval(fpar[f1o + i], R1, p1, a1, r11, G1[i], H1[i], xi, g, H, order)
@@ -321,12 +356,12 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         f2[j] = _world_eval(fpar[f2o + j], R2, p2, a2, r22, G2[j], H2[j], xi, g, H, order)
 
     # -- (15)-(19)
-    c1 = np.empty(m1)
+    c1, at = _take(ws, at, m1)
     for i in range(m1):
         c1[i] = l1[i]
     c1[k1] = 1.0                                  # N1 = sum_i c_i G_i with c_k1 = 1
-    N1 = np.zeros(3)
-    N2 = np.zeros(3)
+    N1, at = _take(ws, at, 3)
+    N2, at = _take(ws, at, 3)
     for i in range(m1):
         for q in range(3):
             N1[q] += c1[i] * G1[i, q]
@@ -360,11 +395,11 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
 
     # -- normal, tangents, impulse
     nrm = math.sqrt(N1[0] * N1[0] + N1[1] * N1[1] + N1[2] * N1[2])
-    n = np.zeros(3)
+    n, at = _take(ws, at, 3)
     for q in range(3):
         n[q] = N1[q] / nrm
-    t = np.zeros(3)
-    o = np.zeros(3)
+    t, at = _take(ws, at, 3)
+    o, at = _take(ws, at, 3)
     e = pf[Q_AXIS:Q_AXIS + 3]
     en = 0.0
     nu = 1.0
@@ -379,16 +414,16 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     pt0 = z[c0 + cpt] if fr else 0.0
     pt1 = z[c0 + cpt + 1] if (fr and d == 3) else 0.0
     p_r = z[c0 + cpr] if tors else 0.0
-    P = np.zeros(3)
-    tau = np.zeros(3)
+    P, at = _take(ws, at, 3)
+    tau, at = _take(ws, at, 3)
     for q in range(3):
         P[q] = s_p * (p_n * n[q] + pt0 * t[q] + pt1 * o[q])
         tau[q] = s_p * e_r * p_r * n[q]
 
     # -- relative velocity at l+1
-    vrel = np.zeros(3)
-    wrel = np.zeros(3)
-    tmp = np.zeros(3)
+    vrel, at = _take(ws, at, 3)
+    wrel, at = _take(ws, at, 3)
+    tmp, at = _take(ws, at, 3)
     _cross(w2, r22, tmp)
     for q in range(3):
         vrel[q] += vo2[q] + tmp[q]
@@ -421,12 +456,13 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         row += 1
 
     # -- the quasi-rigid layer (35), (49), (55)
-    Gc = np.zeros(3)
-    Hc = np.zeros((3, 3))
-    rc = np.zeros(3)
-    uc = np.zeros(3)
-    Gy = np.zeros(3)
-    ry = np.zeros(3)
+    Gc, at = _take(ws, at, 3)
+    Hc_flat, at = _take(ws, at, 3 * 3)
+    Hc = Hc_flat.reshape((3, 3))
+    rc, at = _take(ws, at, 3)
+    uc, at = _take(ws, at, 3)
+    Gy, at = _take(ws, at, 3)
+    ry, at = _take(ws, at, 3)
     gnorm = 1.0
     dspring = 0.0
     if comp != RIGID:
@@ -440,7 +476,7 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
                 jc = j
         _world_eval(fpar[fco + jc], Rc, pc, ac, rc, Gc, Hc, xi, g, H, 2)
         gnorm = math.sqrt(Gc[0] * Gc[0] + Gc[1] * Gc[1] + Gc[2] * Gc[2])
-        y = np.zeros(3)
+        y, at = _take(ws, at, 3)
         for q in range(3):
             uc[q] = Gc[q] / gnorm
             y[q] = ac[q] + dn_ * uc[q]
@@ -463,8 +499,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
             row += 1
 
     # -- generalized impulses: F[v_b] -= s_b (A_v^T P + A_w^T (r_b x P + tau))
-    M1 = np.zeros(3)
-    M2 = np.zeros(3)
+    M1, at = _take(ws, at, 3)
+    M2, at = _take(ws, at, 3)
     _cross(r11, P, M1)
     _cross(r22, P, M2)
     for q in range(3):
@@ -495,14 +531,19 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         return
 
     # ---- Jacobian over the local variables (block, a1, a2, twist 1, twist 2), then folded
-    D = np.zeros((nblk, nv))
-    S = np.zeros((3, 3))
-    Sr = np.zeros((3, 3))
+    D_flat, at = _take(ws, at, nblk * nv)
+    D = D_flat.reshape((nblk, nv))
+    S_flat, at = _take(ws, at, 3 * 3)
+    S = S_flat.reshape((3, 3))
+    Sr_flat, at = _take(ws, at, 3 * 3)
+    Sr = Sr_flat.reshape((3, 3))
     A1v, A2v = x0 + V_A1, x0 + V_A2
     TW1, TW2 = x0 + V_TW1, x0 + V_TW2
     # dN1 = sum_i c_i dG1_i + sum_{i != k1} G1_i dl_i;  dN2 = sum_j l_j dG2_j + G2_j dl_j
-    dN1 = np.zeros((3, nv))
-    dN2 = np.zeros((3, nv))
+    dN1_flat, at = _take(ws, at, 3 * nv)
+    dN1 = dN1_flat.reshape((3, nv))
+    dN2_flat, at = _take(ws, at, 3 * nv)
+    dN2 = dN2_flat.reshape((3, nv))
     for i in range(m1):
         _add_dG(dN1, c1[i], G1[i], H1[i], r11, A1v, TW1, S, Sr)
         if i != k1:
@@ -541,21 +582,26 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         D[row, cdbar] += 1.0
     row += 1
     # dn = Pn dN1, Pn = (I - n n^T) / |N1|
-    dn = np.zeros((3, nv))
+    dn_flat, at = _take(ws, at, 3 * nv)
+    dn = dn_flat.reshape((3, nv))
     for q in range(3):
         for m in range(3):
             pnm = ((1.0 if q == m else 0.0) - n[q] * n[m]) / nrm
             if pnm != 0.0:
                 for c in range(nv):
                     dn[q, c] += pnm * dN1[m, c]
-    Dt = np.zeros((3, 3))
-    Do = np.zeros((3, 3))
+    Dt_flat, at = _take(ws, at, 3 * 3)
+    Dt = Dt_flat.reshape((3, 3))
+    Do_flat, at = _take(ws, at, 3 * 3)
+    Do = Do_flat.reshape((3, 3))
     if d == 3:
         _tangent_derivatives(n, e, en, t, nu, o, Dt, Do)
     else:
         Dt[0, 1], Dt[1, 0] = -1.0, 1.0                                 # t = z x n
-    dt = np.zeros((3, nv))
-    do = np.zeros((3, nv))
+    dt_flat, at = _take(ws, at, 3 * nv)
+    dt = dt_flat.reshape((3, nv))
+    do_flat, at = _take(ws, at, 3 * nv)
+    do = do_flat.reshape((3, nv))
     for q in range(3):
         for m in range(3):
             if Dt[q, m] != 0.0 or Do[q, m] != 0.0:
@@ -563,8 +609,10 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
                     dt[q, c] += Dt[q, m] * dn[m, c]
                     do[q, c] += Do[q, m] * dn[m, c]
     # dP = s_p (n dp_n + t dp_t + o dp_o + p_n dn + p_t dt + p_o do); dtau = s_p e_r (n dp_r + p_r dn)
-    dP = np.zeros((3, nv))
-    dtau = np.zeros((3, nv))
+    dP_flat, at = _take(ws, at, 3 * nv)
+    dP = dP_flat.reshape((3, nv))
+    dtau_flat, at = _take(ws, at, 3 * nv)
+    dtau = dtau_flat.reshape((3, nv))
     for q in range(3):
         dP[q, cpn] += s_p * n[q]
         if fr:
@@ -579,7 +627,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
                 dtau[q, c] += s_p * e_r * p_r * dn[q, c]
     if fr:
         # d v_rel = sum_b s_b (dv_o - [r_b]x domega + [omega_b]x (da_b - dp_b)); d w_rel = dw2 - dw1
-        dvrel = np.zeros((3, nv))
+        dvrel_flat, at = _take(ws, at, 3 * nv)
+        dvrel = dvrel_flat.reshape((3, nv))
         _add_dvpoint(dvrel, 1.0, w2, r22, A2v, TW2, S, Sr)
         _add_dvpoint(dvrel, -1.0, w1, r11, A1v, TW1, S, Sr)
         et2, eo2 = pf[Q_ET] ** 2, pf[Q_EO] ** 2
@@ -622,9 +671,10 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         # (35): d g(y) = Gy . dy - (r_y x Gy) . dtheta_c - Gy . dp_c, dy = da_c + u d dn + dn du,
         # du = Pu dGc, Pu = (I - u u^T) / |Gc|
         Ac, TWc = (A2v, TW2) if side == 2 else (A1v, TW1)
-        dGc = np.zeros((3, nv))
+        dGc_flat, at = _take(ws, at, 3 * nv)
+        dGc = dGc_flat.reshape((3, nv))
         _add_dG(dGc, 1.0, Gc, Hc, rc, Ac, TWc, S, Sr)
-        gyu = np.zeros(3)                  # dn Gy^T Pu
+        gyu, at = _take(ws, at, 3)  # dn Gy^T Pu
         for m in range(3):
             acc = 0.0
             for q in range(3):
@@ -653,8 +703,9 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     # impulse rows: dQ_b = s_b (A_v^T dP + A_w^T dM_b), dM_b = -[P]x (da_b - dp_b) + [r_b]x dP + dtau
     if kv1 + kv2 > 0:
         _skew(P, S)
-        DQ = np.zeros(nv)
-        dM = np.zeros((3, nv))
+        DQ, at = _take(ws, at, nv)
+        dM_flat, at = _take(ws, at, 3 * nv)
+        dM = dM_flat.reshape((3, nv))
         for body in range(2):
             if body == 0:
                 kv, Tb, rb, Av, TW, sgn, first = kv1, Tb1, r11, A1v, TW1, -1.0, 0
