@@ -472,30 +472,20 @@ def read_raw(rec: SkeletonRecord, q_out, v_out, tau_out, fext_out, dv_out=None) 
         dv_out[:] = skel.getAccelerations()
 
 
-def read_dynamics(rec: SkeletonRecord, h: float, q, v, tau, fext, M_out, f_out) -> None:
-    """M and the generalized force tau + tau_ext - (Coriolis + gravity) at l of one mobile
-    skeleton (q, v, tau, fext: as read_raw read them). Joint springs and dampers enter implicitly
-    as DART treats them (see the module docstring); their coefficients are the ones read when the
-    stepper was built (rec.spring_damper: reading them costs ~25 us per skeleton)."""
+def read_dynamics(rec: SkeletonRecord, M_out, cg_out) -> None:
+    """M and the Coriolis and gravity forces at l of one mobile skeleton. (The stepper adds its
+    joint springs and dampers, implicit as DART treats them, see the module docstring:
+    step_kernels.assemble_forces with the coefficients read when it was built, rec.spring_damper;
+    reading them costs ~25 us per skeleton.)"""
     skel = rec.skeleton
     M_out[:] = skel.getMassMatrix()
-    f_out[:] = tau
-    f_out += fext
-    f_out -= skel.getCoriolisAndGravityForces()
-    sd = rec.spring_damper
-    if sd is not None:
-        k, d, q0 = sd
-        # DART's rest position is per dof in joint coordinates; for Ball/Free joints springs are
-        # on the exponential coordinates as in DART's GenericJoint
-        f_out -= k * (q - q0 + h * v) + d * v
-        M_out[np.diag_indices(rec.ndof)] += h * d + h * h * k
+    cg_out[:] = skel.getCoriolisAndGravityForces()
 
 
-def read_body(body: BodyRecord, R_out, p_out, J_out=None) -> None:
-    """A body's world pose at l (and, with J_out (6, k), DART's world Jacobian of its origin)."""
-    T = body.body_node.getTransform().matrix()
-    R_out[:] = T[:3, :3]
-    p_out[:] = T[:3, 3]
+def read_body(body: BodyRecord, T_out, J_out=None) -> None:
+    """A body's world transform at l (4 x 4; and, with J_out (6, k), DART's world Jacobian of
+    its origin)."""
+    T_out[:] = body.body_node.getTransform().matrix()
     if J_out is not None:
         J_out[:] = body.skeleton.getWorldJacobian(body.body_node, _ORIGIN)
 

@@ -729,8 +729,8 @@ def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
                  "no Newton, Levenberg-Marquardt or gradient step decreases the merit (a stationary point "
                  "of the merit that is not a solution)")
         message = f"Stopped after {iterations} iterations: {cause}; natural residual {residual:.3g}."
-    history = tuple(float(v) for v in buf.history[: iterations + 1])
-    steps = "".join(_STEP_LETTERS[int(k)] for k in buf.steps[:iterations])
+    history = tuple(buf.history[: iterations + 1].tolist())
+    steps = "".join([_STEP_LETTERS[k] for k in buf.steps[:iterations].tolist()])
     return McpResult(buf.x.copy(), buf.F.copy(), status, iterations, residual, history, message, steps,
                      int(info[I_NFEV]), int(info[I_NJEV]))
 

@@ -327,3 +327,78 @@ def all_finite(a, b, c, d):
             if not math.isfinite(x[i]):
                 return False
     return True
+
+
+@kernel
+def assemble_forces(W, h):
+    """Each skeleton's force at l, tau + tau_ext - (Coriolis + gravity), with its joint springs
+    and dampers implicit as DART treats them: force -= K (q - q_rest + h v) + D v, and
+    M += h D + h^2 K on the diagonal (dart_adapter's module docstring)."""
+    for i in range(W.FB.shape[0]):
+        W.FB[i] = W.TAU[i] + W.FEXT[i] - W.CG[i] - (W.SPK[i] * (W.Q[i] - W.SPQ0[i] + h * W.V[i]) + W.SPD[i] * W.V[i])
+    for s in range(W.sk_nv.shape[0]):
+        k, off, moff = W.sk_nv[s], W.sk_voff[s], W.sk_moff[s]
+        for i in range(k):
+            W.MB[moff + i * k + i] += h * W.SPD[off + i] + h * h * W.SPK[off + i]
+
+
+@kernel
+def given_poses(W):
+    """The fixed and articulated bodies' poses from DART's transforms TG (4 x 4); returns whether a
+    fixed body moved since the last call (its unbounded pieces' exact boxes are then stale)."""
+    for b in W.read_bodies:
+        for i in range(3):
+            W.p_given[b, i] = W.TG[b, i, 3]
+            for j in range(3):
+                W.R_given[b, i, j] = W.TG[b, i, j]
+    moved = False
+    for f in range(W.fixed.shape[0]):
+        b = W.fixed[f]
+        for i in range(3):
+            if W.p_given[b, i] != W.p_fixed[f, i]:
+                moved = True
+            W.p_fixed[f, i] = W.p_given[b, i]
+            for j in range(3):
+                if W.R_given[b, i, j] != W.R_fixed[f, i, j]:
+                    moved = True
+                W.R_fixed[f, i, j] = W.R_given[b, i, j]
+    return moved
+
+
+@kernel
+def kinematics(W, h, base, half):
+    """A step's state at l from what was read of DART: forces (assemble_forces), given poses
+    (given_poses), free flight, poses now and after the free step, motion margins, and (half) the
+    poses half a step on at v. Returns whether a fixed body moved."""
+    assemble_forces(W, h)
+    moved = given_poses(W)
+    free_flight(W.sk_nv, W.sk_voff, W.sk_moff, W.V, W.MB, W.FB, h, W.VF)
+    body_poses(W.bd_kind, W.bd_sk, W.bd_joff, W.sk_voff, W.sk_nv, W.Q, W.V, 0.0, W.R_given, W.p_given, W.JB,
+               W.R_now, W.p_now, W.th_now)
+    body_poses(W.bd_kind, W.bd_sk, W.bd_joff, W.sk_voff, W.sk_nv, W.Q, W.VF, h, W.R_given, W.p_given, W.JB,
+               W.R_pred, W.p_pred, W.th_pred)
+    motion_margins(W.ob_body, W.ob_reach, W.bd_kind, W.bd_sk, W.bd_joff, W.sk_voff, W.sk_nv, W.VF, W.JB, h, base,
+                   W.margins)
+    if half:
+        body_poses(W.bd_kind, W.bd_sk, W.bd_joff, W.sk_voff, W.sk_nv, W.Q, W.V, 0.5 * h, W.R_given, W.p_given,
+                   W.JB, W.R_half, W.p_half, W.th_half)
+    return moved
+
+
+@kernel
+def grown_boxes(W, fat_lo, fat_hi):
+    """The pieces' boxes (piece_boxes, now joined with after the free step) grown by their
+    margins into W.glo, W.ghi; returns whether every grown box lies inside its fat box (fat_lo,
+    fat_hi; False when they are empty)."""
+    glo, ghi = W.glo, W.ghi
+    piece_boxes(W.ob_body, W.ob_bounded, W.ob_dim, W.ob_centre, W.ob_half, W.exact_lo, W.exact_hi, W.R_now, W.p_now,
+                W.R_pred, W.p_pred, W.is_mobile, glo, ghi)
+    inside = fat_lo.shape[0] == glo.shape[0] and glo.shape[0] > 0
+    for o in range(glo.shape[0]):
+        m = W.margins[o]
+        for a in range(3):
+            glo[o, a] -= m
+            ghi[o, a] += m
+            if inside and (glo[o, a] < fat_lo[o, a] or ghi[o, a] > fat_hi[o, a]):
+                inside = False
+    return inside

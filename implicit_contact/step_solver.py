@@ -16,6 +16,7 @@ basin makes it round-off exact.
 from __future__ import annotations
 
 from dataclasses import replace
+import math
 
 import numpy as np
 
@@ -59,8 +60,9 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
             info[ncp.I_SINGULAR] = 0 if ncp.dense_lm(H, g, fbuf[ncp.F_MU], d) else 1
         elif req == ncp.REQ_HG:
             fbuf[ncp.F_HGSQ] = ncp.dense_hg_sq(H, g)
-    # the reports at the final iterate (the last evaluation may have been a rejected trial)
-    if np.isfinite(fbuf[ncp.F_RESIDUAL]):
+    # the reports at the final iterate: the last evaluation was there unless the solve stopped
+    # after a rejected trial (a failed line search)
+    if np.isfinite(fbuf[ncp.F_RESIDUAL]) and info[ncp.I_STATUS] in (ncp.S_LINE_SEARCH_FAILED, ncp.S_SINGULAR):
         assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
                  st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, False, False)
@@ -70,19 +72,19 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
     if problem._sparse:
         return ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options)
     x0 = np.ascontiguousarray(z0, dtype=float)
-    if x0.shape != problem.lower.shape or not np.isfinite(x0 @ x0) and not np.isfinite(x0).all():
+    if x0.shape != problem.lower.shape or not math.isfinite(x0 @ x0) and not np.isfinite(x0).all():
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
     if sync:
         problem._sync()
     n = x0.shape[0]
-    key = (options.max_iterations, options)
     held = problem.__dict__.setdefault("_solver_buffers", {})
-    if key not in held:
+    entry = held.get(id(options))
+    if entry is None or entry[4] is not options:
         if len(held) > 4:
             held.clear()
-        held[key] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)),
-                     ncp.options_array(options))
-    buf, J, H, opt = held[key]
+        entry = held[id(options)] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)),
+                                     ncp.options_array(options), options)
+    buf, J, H, opt, _ = entry
     t = problem.tables
     R, p, w, vo, T, FL, JL, ws = problem._work
     _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
@@ -94,12 +96,23 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
     return result
 
 
+def _polishing(problem: StepProblem, options: ncp.SolverOptions) -> ncp.SolverOptions:
+    """The polishing step's options (one Newton step at tol / 1000), kept with the problem."""
+    held = problem.__dict__.setdefault("_polish_options", {})
+    entry = held.get(id(options))
+    if entry is None or entry[0] is not options:
+        if len(held) > 4:
+            held.clear()
+        entry = held[id(options)] = (options, replace(options, tol=1e-3 * options.tol, max_iterations=1))
+    return entry[1]
+
+
 def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = True) -> ncp.McpResult:
     """The step's MCP from z0, polished (see the module docstring). sync: copy the pairs' k1 and
     tangent axes from their specs first (False: the tables already hold them)."""
     result = _solve_once(problem, z0, options, sync)
     if result.success and result.residual > 1e-3 * options.tol:
-        polish = _solve_once(problem, result.x, replace(options, tol=1e-3 * options.tol, max_iterations=1), False)
+        polish = _solve_once(problem, result.x, _polishing(problem, options), False)
         if polish.residual < result.residual:
             result = replace(result, x=polish.x, f=polish.f, residual=polish.residual,
                              iterations=result.iterations + polish.iterations)

@@ -37,15 +37,17 @@ import warnings
 
 import numpy as np
 
+from . import bundles
 from . import dart_adapter as adapter
 from . import formulation as fm
 from . import ncp
 from . import recovery
 from . import shapes as shp
+from . import repeat_kernels as rk_repeat
 from . import step_kernels as sk
 from . import step_solver
 from .broadphase import Broadphase
-from .memory import PairMemory, carry_pairs, choose_axis, known_gaps, warm_start as memory_warm_start
+from .memory import PairMemory, choose_axis, warm_start as memory_warm_start
 from .params import Compliance, Friction
 from .rows import checks as rk
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
@@ -186,6 +188,7 @@ class ImplicitContactStepper:
         self._problems = {}        # persistent step problems, by layout signature and bodies
         self._ctx = None           # what the last step leaves for _repeat_step
         self._midpoint = None      # cache of _trapezoidal_skeletons
+        self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._retrying = False
         self._check_state_finite()
         if self.options.check_penetration_at_start:
@@ -331,10 +334,9 @@ class ImplicitContactStepper:
                              "refuses to step it.")
         self._gravity_norm = float(np.linalg.norm(gravity))
         views = []
-        for s, rec in enumerate(self.scene.skeletons):
-            o, k = w.sk_voff[s], w.sk_nv[s]
-            adapter.read_raw(rec, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k], w.DV[o:o + k])
-            views.append((rec.skeleton, w.Q[o:o + k], w.V[o:o + k], w.DV[o:o + k], w.TAU[o:o + k]))
+        for rec, (q, v, tau, fext, dv), _, _ in w.skeleton_views:
+            adapter.read_raw(rec, q, v, tau, fext, dv)
+            views.append((rec.skeleton, q, v, dv, tau))
         if not sk.all_finite(w.Q, w.V, w.TAU, w.FEXT):
             self._check_state_finite()
         w.raw_valid = True
@@ -450,14 +452,18 @@ class ImplicitContactStepper:
         eligible = np.array([self._gap_bound_applies(i, j) for i, j in pairs], np.bool_)
         if problem is not None:
             source = next(c[3] for c in self._problems.values() if c[0] is problem)
-        return _Context(h, P, mask, gaps, problem, att, source, w.R_given[w.fixed].copy(), w.p_given[w.fixed].copy(),
-                        eligible)
+        ctx = _Context(h, P, mask, gaps, problem, att, source, eligible)
+        if problem is not None:
+            n, npairs = problem.layout.n, len(att.specs)
+            ctx.z0, ctx.flags, ctx.near_gaps = np.zeros(n), np.zeros(npairs, np.int64), np.zeros(npairs)
+            ctx.V_solved, ctx.sup_y = np.zeros_like(w.V), np.zeros((len(problem.supports), 4))
+        return ctx
 
     def _repeat_step(self, h, t0) -> StepReport | None:
         """The step when it repeats the last one's structure: the same candidate pairs, the same
         ones left out as far, the same rows (friction rows where they were), fixed bodies where
         they were, no recovery needed. Then the last step's problem is refreshed in place and its
-        solution carried over by kernels (memory.carry_pairs, memory.warm_start) instead of being
+        solution carried over by kernels (repeat_kernels.prepare and finish) instead of being
         rebuilt pair by pair; the mathematics is _one_step's (tests/test_repeat_step.py checks
         the trajectories are the same bitwise). None when anything differs or a check of
         _one_step would act: _one_step then takes the step from the start."""
@@ -466,8 +472,7 @@ class ImplicitContactStepper:
             return None
         w = self._world
         state = self._read(h)
-        if len(w.fixed) and not (np.array_equal(w.R_given[w.fixed], ctx.R_fixed)
-                                 and np.array_equal(w.p_given[w.fixed], ctx.p_fixed)):
+        if w.fixed_moved:
             return None
         tol = self.options.contact_tolerance
         P = self._candidate_array(state)
@@ -494,48 +499,45 @@ class ImplicitContactStepper:
         problem, att = ctx.problem, ctx.att
         memory = self._last
         t = problem.tables
-        if len(memory) != len(t.pair_i) or \
-                not carry_pairs(t.pair_i, t.pair_f, memory.pair_i, memory.pair_f, memory.z, memory.rep, _TOUCH,
-                                _AXIS_LIMIT):
-            return None
-        problem.fill(h, ctx.source)
         lay = problem.layout
-        v_free = np.zeros(lay.n)
-        for k, s in enumerate(att.involved):
-            v_free[lay.v_index[k]] = state.v_free[s]
-        z0 = np.zeros(lay.n)
-        memory_warm_start(t.pair_i, t.pair_f, t.body_i, t.body_f, t.body_jac, t.sk_i, t.v0, v_free,
-                          ctx.identity, memory.pair_i, memory.pair_f, memory.z, memory.rep, False, h, z0)
-        for sp, ss in zip(problem.supports, lay.supports):
+        if len(memory) != len(t.pair_i):
+            return None
+        sup_y = ctx.sup_y
+        for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
             last = self._last_support.get(sp.key)
             if last is None or len(last[0]) != ss.y.stop - ss.y.start:
                 return None
-            z0[ss.y], z0[ss.sigma] = last[0], last[1]
+            sup_y[s, :len(last[0])], sup_y[s, 3] = last[0], last[1]
+        z0 = ctx.z0
+        src = ctx.source
+        if rk_repeat.prepare(t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
+                             t.scale, t.sup_i, t.sup_f, *src, w.VF, h, t.body_dim, problem._pos_rows, t.sup_body,
+                             t.sup_c, t.sup_er, t.sup_mun, memory.pair_i, memory.pair_f, memory.z, memory.rep,
+                             ctx.identity, _TOUCH, _AXIS_LIMIT, sup_y, z0) != rk_repeat.OK:
+            return None
+        problem._invalidate()
+        problem.h = h
         result = self._solve(problem, z0, sync=False)
-        if not result.success or np.any(problem.checks(result.x, tol, self.options.solver.tol, _TOUCH)):
+        if not result.success:
             return None
         x = result.x
-        V_solved = w.VF.copy()
-        v_solved = list(state.v_free)
-        for k, s in enumerate(att.involved):
-            v_solved[s] = x[lay.v_index[k]]
-            V_solved[w.sk_voff[s]:w.sk_voff[s] + w.sk_nv[s]] = v_solved[s]
-        if len(Pf) and sk.far_after(Pf, ctx.gaps[far], w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff,
-                                    V_solved, h, tol, left):
+        R, p = problem._work[0], problem._work[1]
+        if rk_repeat.finish(t.pair_i, t.pair_f, t.fpar, t.sk_i, x, problem._rep, R, p, tol, self.options.solver.tol,
+                            _TOUCH, ctx.flags, src[7], src[8], w.VF, ctx.V_solved, Pf, ctx.gaps[far], left,
+                            w.ob_body, w.ob_radius, w.ob_bounded, w.bd_kind, w.bd_sk, w.sk_voff, state.margins, h,
+                            ctx.eligible, ctx.near_gaps) != rk_repeat.OK:
             return None
-        if sk.moved_beyond_margins(w.ob_body, w.ob_radius, w.ob_bounded, w.bd_kind, w.bd_sk, w.sk_voff, V_solved,
-                                   w.VF, state.margins, h, tol):
-            return None
+        v_solved = [ctx.V_solved[w.sk_voff[s]:w.sk_voff[s] + w.sk_nv[s]] for s in range(len(self.scene.skeletons))]
         self._commit(state, v_solved)
         self._last = memory.carried(problem, x)
-        self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g) for (i, j), g in zip(Pf, left)}
-        self._last_support = {sp.key: (x[ss.y].copy(), float(x[ss.sigma]), problem.support_wrench(x, s))
-                              for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
+        self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g)
+                     for (i, j), g in zip(Pf, left)} if len(Pf) else {}
+        if problem.supports:
+            self._last_support = {sp.key: (x[ss.y].copy(), float(x[ss.sigma]), problem.support_wrench(x, s))
+                                  for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
         ctx.gaps[far] = left
-        near_gaps = np.empty(len(att.specs))
-        known_gaps(self._last.pair_i, self._last.z, self._last.rep, ctx.eligible, tol, near_gaps)
-        ctx.gaps[~far] = near_gaps
-        contacts = _LazyContacts(self, problem, x.copy(), att.specs)
+        ctx.gaps[~far] = ctx.near_gaps
+        contacts = _LazyContacts(self, problem, self._last.z, att.specs, self._last.rep)
         return StepReport(True, result.iterations, result.residual, result.status.name, contacts, t0 + h, 1,
                           result.message, lay.n)
 
@@ -545,27 +547,18 @@ class ImplicitContactStepper:
         free-flight velocities v + h M^-1 force, every body's pose now and after a free step, and
         each piece's motion margin for the broadphase."""
         scene, w = self.scene, self._world
-        for s, rec in enumerate(scene.skeletons):
-            o, k, mo = w.sk_voff[s], w.sk_nv[s], w.sk_moff[s]
-            if not w.raw_valid:
-                adapter.read_raw(rec, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k])
-            adapter.read_dynamics(rec, h, w.Q[o:o + k], w.V[o:o + k], w.TAU[o:o + k], w.FEXT[o:o + k],
-                                  w.MB[mo:mo + k * k].reshape(k, k), w.FB[o:o + k])
-        for b in w.read_bodies:
-            jo = w.bd_joff[b]
-            J = w.JB[jo:jo + 6 * w.bd_nv[b]].reshape(6, w.bd_nv[b]) if w.bd_kind[b] == sk.ARTICULATED else None
-            adapter.read_body(scene.bodies[b], w.R_given[b], w.p_given[b], J)
-        sk.free_flight(w.sk_nv, w.sk_voff, w.sk_moff, w.V, w.MB, w.FB, h, w.VF)
-        sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.V, 0.0, w.R_given, w.p_given, w.JB,
-                      w.R_now, w.p_now, w.th_now)
-        sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.VF, h, w.R_given, w.p_given, w.JB,
-                      w.R_pred, w.p_pred, w.th_pred)
-        sk.motion_margins(w.ob_body, w.ob_reach, w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.VF, w.JB, h,
-                          10.0 * self.options.contact_tolerance, w.margins)
-        if self._trapezoidal_skeletons():
-            # the "midpoint" quasi-rigid scheme: poses half a step on at v (see _problem)
-            sk.body_poses(w.bd_kind, w.bd_sk, w.bd_joff, w.sk_voff, w.sk_nv, w.Q, w.V, 0.5 * h, w.R_given, w.p_given,
-                          w.JB, w.R_half, w.p_half, w.th_half)
+        raw = not w.raw_valid
+        for rec, (q, v, tau, fext, _), M, cg in w.skeleton_views:
+            if raw:
+                adapter.read_raw(rec, q, v, tau, fext)
+            adapter.read_dynamics(rec, M, cg)
+        for b in w.read_bodies_list:
+            adapter.read_body(scene.bodies[b], w.TG[b], w.J_views.get(b))
+        # forces, given poses, free flight, poses, margins (step_kernels.kinematics); whether a
+        # fixture moved since the last read (its unbounded pieces' boxes, _repeat_step); the
+        # "midpoint" quasi-rigid scheme also needs the poses half a step on at v (see _problem)
+        w.fixed_moved = sk.kinematics(w.bundle, h, 10.0 * self.options.contact_tolerance,
+                                      bool(self._trapezoidal_skeletons()))
         return _StepState(h, w.states, w.v_free, w.poses_now, w.poses_pred, w.margins)
 
     def _candidates(self, state, keep) -> frozenset:
@@ -583,11 +576,12 @@ class ImplicitContactStepper:
     def _candidate_array(self, state) -> np.ndarray:
         """The candidate pairs of _candidates as a sorted (n, 2) array (no kept pairs)."""
         w = self._world
-        lo, hi = self._boxes(w.R_now, w.p_now, w.R_pred, w.p_pred, w.is_mobile)
-        m = state.margins[:, None]
-        glo, ghi = lo - m, hi + m
+        self._exact_boxes(w.R_now, w.p_now, w.R_pred, w.p_pred, w.is_mobile, settled=not w.fixed_moved)
+        glo, ghi = w.glo, w.ghi
         fat = self._fat
-        if fat is None or bool(np.any(glo < fat[0])) or bool(np.any(ghi > fat[1])):
+        inside = sk.grown_boxes(w.bundle, w.no_box if fat is None else fat[0], w.no_box if fat is None else fat[1])
+        if fat is None or not inside:
+            m = state.margins[:, None]
             slack = m + _FAT_SLACK * self._sizes[:, None]
             flo, fhi = glo - slack, ghi + slack
             found = [p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)]
@@ -612,10 +606,20 @@ class ImplicitContactStepper:
         """World AABBs (lo, hi), (n, 3), of every piece at poses (R1, p1), joined with its box at
         (R2, p2) where join[body] (step_kernels.piece_boxes); unbounded pieces: their exact box."""
         w = self._world
+        self._exact_boxes(R1, p1, R2, p2, join)
+        lo, hi = np.empty((len(self._objects), 3)), np.empty((len(self._objects), 3))
+        sk.piece_boxes(w.ob_body, w.ob_bounded, w.ob_dim, w.ob_centre, w.ob_half, w.exact_lo, w.exact_hi,
+                       R1, p1, R2, p2, join, lo, hi)
+        return lo, hi
+
+    def _exact_boxes(self, R1, p1, R2, p2, join, settled=False):
+        """The exact boxes of the unbounded pieces (exact_lo, exact_hi), where their poses changed;
+        settled: the fixed bodies are where they were when their boxes were made."""
+        w = self._world
         for k in w.unbounded:
             o = self._objects[k]
-            if not join[o.body] and w.exact_known[k] and np.array_equal(o._last[0], R1[o.body]) \
-                    and np.array_equal(o._last[1], p1[o.body]):
+            if not join[o.body] and w.exact_known[k] and (settled or (np.array_equal(o._last[0], R1[o.body])
+                                                                       and np.array_equal(o._last[1], p1[o.body]))):
                 continue
             lo, hi = o.box((R1[o.body], p1[o.body]))
             if join[o.body]:
@@ -623,10 +627,6 @@ class ImplicitContactStepper:
                 lo, hi = np.minimum(lo, l2), np.maximum(hi, h2)
             w.exact_lo[k], w.exact_hi[k] = lo, hi
             w.exact_known[k] = not join[o.body]
-        lo, hi = np.empty((len(self._objects), 3)), np.empty((len(self._objects), 3))
-        sk.piece_boxes(w.ob_body, w.ob_bounded, w.ob_dim, w.ob_centre, w.ob_half, w.exact_lo, w.exact_hi,
-                       R1, p1, R2, p2, join, lo, hi)
-        return lo, hi
 
     def _pairs_at(self, poses, margins, extra_poses=None):
         """Candidate pairs from a direct broadphase query at poses (body -> (R, p)), joined with
@@ -827,7 +827,10 @@ class ImplicitContactStepper:
         if self._retrying:
             # substeps of a retried step are the hard ones (measured: a box slapping flat onto the
             # ground converges in ~100 LM iterations); give them a larger budget
-            opts = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
+            if self._retry_solver is None:
+                self._retry_solver = replace(opts, max_iterations=self.options.retry_iterations_factor
+                                             * opts.max_iterations)
+            opts = self._retry_solver
         try:
             return step_solver.solve(problem, z0, opts, sync)
         except (ZeroDivisionError, FloatingPointError, OverflowError, ValueError) as exc:
@@ -1100,7 +1103,8 @@ class _World:
             if b.kind == adapter.ARTICULATED:
                 at += 6 * nv[b.skeleton_index]
         self.bd_joff = np.array(joff, np.int64)
-        self.read_bodies = [b.index for b in bodies if b.kind in (adapter.FIXED, adapter.ARTICULATED)]
+        self.read_bodies_list = [b.index for b in bodies if b.kind in (adapter.FIXED, adapter.ARTICULATED)]
+        self.read_bodies = np.array(self.read_bodies_list, np.int64)
         self.mobile = [b.index for b in bodies if b.kind != adapter.FIXED]
         self.is_mobile = np.array([b.kind != adapter.FIXED for b in bodies], np.bool_)
         no = len(objects)
@@ -1118,10 +1122,21 @@ class _World:
         self.ob_reach = np.array(reach, float)
         self.unbounded = [k for k, o in enumerate(objects) if o.local_box is None]
         self.fixed = np.array([b.index for b in bodies if b.kind == adapter.FIXED], np.int64)
+        self.R_fixed, self.p_fixed = np.full((len(self.fixed), 3, 3), np.nan), np.full((len(self.fixed), 3), np.nan)
+        self.fixed_moved = True
         self.ob_radius = np.array([o.radius if o.radius is not None else 0.0 for o in objects], float)
         self.exact_lo, self.exact_hi = np.zeros((no, 3)), np.zeros((no, 3))
         self.exact_known = np.zeros(no, np.bool_)     # exact_lo/hi hold the box at the piece's last pose
+        self.glo, self.ghi = np.zeros((no, 3)), np.zeros((no, 3))   # the grown boxes of the step
+        self.no_box = np.zeros((0, 3))
         self.Q, self.V, self.FB, self.VF = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
+        self.CG, self.V_solved = np.zeros(nvw), np.zeros(nvw)
+        # joint springs and dampers per dof (zero where none; dart_adapter._spring_damper)
+        self.SPK, self.SPD, self.SPQ0 = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
+        for s, rec in enumerate(scene.skeletons):
+            if rec.spring_damper is not None:
+                o, k = self.sk_voff[s], nv[s]
+                self.SPK[o:o + k], self.SPD[o:o + k], self.SPQ0[o:o + k] = rec.spring_damper
         self.TAU, self.FEXT, self.DV = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
         self.raw_valid = False      # Q, V, TAU, FEXT hold the world as it is now (read by _begin)
         self.world_skeletons = None  # the world's other skeletons with dofs (for snapshots)
@@ -1129,6 +1144,7 @@ class _World:
         self.MB = np.zeros(max(nM, 1))
         self.JB = np.zeros(max(at, 1))
         self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
+        self.TG = np.zeros((nb, 4, 4))
         self.R_now, self.p_now, self.th_now = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.R_pred, self.p_pred, self.th_pred = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
         self.R_half, self.p_half, self.th_half = np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros(nb)
@@ -1146,6 +1162,12 @@ class _World:
             self.v_free.append(self.VF[o:o + k])
         self.poses_now = {b: (self.R_now[b], self.p_now[b]) for b in range(nb)}
         self.poses_pred = {b: (self.R_pred[b], self.p_pred[b]) for b in self.mobile}
+        self.skeleton_views = [(rec, tuple(a[o:o + k] for a in (self.Q, self.V, self.TAU, self.FEXT, self.DV)),
+                                self.MB[mo:mo + k * k].reshape(k, k), self.CG[o:o + k])
+                               for rec, o, mo, k in zip(scene.skeletons, self.sk_voff, self.sk_moff, nv)]
+        self.J_views = {b.index: self.JB[self.bd_joff[b.index]:self.bd_joff[b.index] + 6 * nv[b.skeleton_index]]
+                        .reshape(6, nv[b.skeleton_index]) for b in bodies if b.kind == adapter.ARTICULATED}
+        self.bundle = bundles.world(**{name: getattr(self, name) for name in bundles.WORLD_FIELDS})
 
 
 @dataclass
@@ -1158,9 +1180,13 @@ class _Context:
     problem: object            # the step's StepProblem (None: no pair was near)
     att: object                # its solve loop's state (specs, skeletons, bodies)
     source: tuple              # the problem's world-buffer source (rows/tables.fill_state)
-    R_fixed: np.ndarray        # the fixed bodies' poses it was built with
-    p_fixed: np.ndarray
     eligible: np.ndarray       # per solved pair: whether a known gap can leave it out (_gap_bound_applies)
+    # buffers of _repeat_step (made with the context when a problem was solved)
+    z0: np.ndarray = None
+    flags: np.ndarray = None
+    near_gaps: np.ndarray = None
+    V_solved: np.ndarray = None
+    sup_y: np.ndarray = None
 
     @property
     def identity(self) -> np.ndarray:
@@ -1172,12 +1198,13 @@ class _Context:
 
 
 class _LazyContacts(Sequence):
-    """A step's contact reports, made when first read (a step that nobody inspects pays nothing)."""
+    """A step's contact reports, made when first read (a step that nobody inspects pays nothing)
+    from its solution z and its pairs' reports rep (copies, kept)."""
 
-    def __init__(self, stepper, problem, z, specs):
+    def __init__(self, stepper, problem, z, specs, rep):
         self._args = (stepper, problem, z, specs)
         self._items = None
-        self._rep = problem._rep.copy()
+        self._rep = rep
 
     def _made(self):
         if self._items is None:

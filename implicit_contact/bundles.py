@@ -1,0 +1,103 @@
+"""Bundles of arrays handed to a compiled kernel as one argument (numba StructRefs).
+
+A call from Python into a compiled kernel costs about 0.07 us per array argument to type and
+unbox; the step that repeats the last one's structure (repeat_kernels.step) reads some hundred
+arrays. Bundled into a few StructRefs it costs one argument each. A bundle holds the same
+arrays as the Python objects that made it (numba keeps references to their memory), so what
+Python writes into them the kernel reads, and the other way round; a field is never rebound.
+
+Under NUMBA_DISABLE_JIT=1 a bundle is a types.SimpleNamespace with the same fields, which the
+kernels, then plain Python, read the same way.
+"""
+from __future__ import annotations
+
+import types as _pytypes
+
+import numba
+from numba import types
+from numba.experimental import structref
+
+WORLD_FIELDS = ("sk_nv", "sk_voff", "sk_moff", "bd_kind", "bd_sk", "bd_joff", "ob_body", "ob_bounded", "ob_dim",
+                "ob_centre", "ob_half", "ob_reach", "ob_radius", "exact_lo", "exact_hi", "is_mobile", "fixed",
+                "read_bodies", "Q", "V", "TAU", "FEXT", "CG", "MB", "FB", "VF", "JB", "TG", "R_given", "p_given",
+                "R_now", "p_now", "th_now", "R_pred", "p_pred", "th_pred", "R_half", "p_half", "th_half",
+                "margins", "glo", "ghi", "R_fixed", "p_fixed", "SPK", "SPD", "SPQ0", "V_solved")
+TABLE_FIELDS = ("body_i", "body_f", "body_jac", "fpar", "sk_i", "sk_M", "v0", "hforce", "pair_i", "pair_f",
+                "sup_i", "sup_f", "loc_idx", "loc_off", "scale", "body_dim", "pos_rows", "sup_body", "sup_c",
+                "sup_er", "sup_mun", "lower", "upper", "rep", "st_R", "st_p", "st_w", "st_vo", "st_T", "FL", "JL",
+                "ws")
+SOLVER_FIELDS = ("x", "F", "xt", "Ft", "Phi", "Phit", "d", "g", "da", "db", "zk", "Jz", "history", "steps", "info",
+                 "fbuf", "work", "J", "H", "opt")
+CONTEXT_FIELDS = ("fat_P", "fat_mask", "cand", "near", "far", "gaps", "eligible", "flags", "near_gaps", "left",
+                  "z0", "sup_y", "src", "J_at", "h_body", "sk_src", "identity")
+
+
+@structref.register
+class WorldType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+@structref.register
+class TablesType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+@structref.register
+class SolverType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+@structref.register
+class ContextType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class World(structref.StructRefProxy):
+    """The stepper's world tables and buffers (stepper._World)."""
+
+
+class Tables(structref.StructRefProxy):
+    """A step problem's tables and evaluation workspace (formulation.StepProblem)."""
+
+
+class Solver(structref.StructRefProxy):
+    """One set of solver buffers (ncp.Buffers, J, H) and its options array."""
+
+
+class Context(structref.StructRefProxy):
+    """What _repeat_step compares and fills (stepper._Context)."""
+
+
+structref.define_proxy(World, WorldType, list(WORLD_FIELDS))
+structref.define_proxy(Tables, TablesType, list(TABLE_FIELDS))
+structref.define_proxy(Solver, SolverType, list(SOLVER_FIELDS))
+structref.define_proxy(Context, ContextType, list(CONTEXT_FIELDS))
+
+
+def _make(cls, fields, values: dict):
+    missing = [f for f in fields if f not in values]
+    if missing:
+        raise ValueError(f"a {cls.__name__} bundle needs {missing}")
+    if numba.config.DISABLE_JIT:
+        return _pytypes.SimpleNamespace(**{f: values[f] for f in fields})
+    return cls(*[values[f] for f in fields])
+
+
+def world(**values):
+    return _make(World, WORLD_FIELDS, values)
+
+
+def tables(**values):
+    return _make(Tables, TABLE_FIELDS, values)
+
+
+def solver(**values):
+    return _make(Solver, SOLVER_FIELDS, values)
+
+
+def context(**values):
+    return _make(Context, CONTEXT_FIELDS, values)
