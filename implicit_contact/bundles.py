@@ -28,8 +28,8 @@ TABLE_FIELDS = ("body_i", "body_f", "body_jac", "fpar", "sk_i", "sk_M", "v0", "h
                 "ws")
 SOLVER_FIELDS = ("x", "F", "xt", "Ft", "Phi", "Phit", "d", "g", "da", "db", "zk", "Jz", "history", "steps", "info",
                  "fbuf", "work", "J", "H", "opt")
-CONTEXT_FIELDS = ("fat_P", "fat_mask", "cand", "near", "far", "gaps", "eligible", "flags", "near_gaps", "left",
-                  "z0", "sup_y", "src", "J_at", "h_body", "sk_src", "identity")
+CONTEXT_FIELDS = ("cand", "near", "far", "far_P", "far_g", "gaps", "eligible", "flags", "near_gaps",
+                  "left", "z0", "sup_y", "src", "J_at", "h_body", "sk_src", "identity")
 
 
 @structref.register

@@ -35,6 +35,8 @@ import math
 import numpy as np
 import scipy.sparse as _sparse
 
+from . import bundles
+
 # the layout's names are formulation's too (callers build a step with fm.PairSpec, fm.build_layout, ...)
 from .layout import (ARTICULATED, FIXED, FREE, PLANAR, ContactObject, Layout, PairSlots, PairSpec,  # noqa: F401
                      PairState, SkeletonBlock, _as_slice, _least_aligned_axis, _position_rows,
@@ -360,6 +362,19 @@ class StepProblem:
         rt.fill_state(*source, h, t.body_dim, t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce,
                       t.scale, self._pos_rows, t.sup_body, t.sup_c, t.sup_er, t.sup_mun, t.sup_f)
         self._invalidate()
+
+    @property
+    def bundle(self):
+        """The tables, bounds, reports and evaluation workspace as one bundles.Tables."""
+        b = self.__dict__.get("_bundle")
+        if b is None:
+            t = self.tables
+            R, p, w, vo, T, FL, JL, ws = self._work
+            fields = {name: getattr(t, name) for name in bundles.TABLE_FIELDS if hasattr(t, name)}
+            fields.update(pos_rows=self._pos_rows, lower=self.lower, upper=self.upper, rep=self._rep, st_R=R,
+                          st_p=p, st_w=w, st_vo=vo, st_T=T, FL=FL, JL=JL, ws=ws)
+            b = self.__dict__["_bundle"] = bundles.tables(**fields)
+        return b
 
     def _invalidate(self):
         """Forget every evaluation (the tables changed)."""

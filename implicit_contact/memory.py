@@ -59,6 +59,14 @@ class PairMemory:
         new.keys, new.compliance_k = self.keys, self.compliance_k
         return new
 
+    def carried_arrays(self, pair_f, z, rep) -> "PairMemory":
+        """The memory of a step whose pairs are this memory's in the same rows, from its new
+        pair parameters, solution and reports (repeat_kernels.step's new_f, new_z, new_rep)."""
+        new = PairMemory.__new__(PairMemory)
+        new.pair_i, new.pair_f, new.z, new.rep = self.pair_i, pair_f, z, rep
+        new.keys, new.compliance_k = self.keys, self.compliance_k
+        return new
+
     def __contains__(self, key) -> bool:
         return key in self.keys
 

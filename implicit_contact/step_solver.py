@@ -20,6 +20,7 @@ import math
 
 import numpy as np
 
+from . import bundles
 from . import ncp
 from ._jit import kernel
 from .formulation import StepProblem
@@ -77,14 +78,7 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
     if sync:
         problem._sync()
     n = x0.shape[0]
-    held = problem.__dict__.setdefault("_solver_buffers", {})
-    entry = held.get(id(options))
-    if entry is None or entry[4] is not options:
-        if len(held) > 4:
-            held.clear()
-        entry = held[id(options)] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)),
-                                     ncp.options_array(options), options)
-    buf, J, H, opt, _ = entry
+    buf, J, H, opt, _, _ = _buffers(problem, options)
     t = problem.tables
     R, p, w, vo, T, FL, JL, ws = problem._work
     _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
@@ -94,6 +88,30 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
     result = ncp.result_from_buffers(buf, options)
     problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
     return result
+
+
+def _buffers(problem: StepProblem, options: ncp.SolverOptions):
+    """(ncp.Buffers, J, H, options array, options, their bundles.Solver) of one solve, kept with the
+    problem per options."""
+    held = problem.__dict__.setdefault("_solver_buffers", {})
+    entry = held.get(id(options))
+    if entry is None or entry[4] is not options:
+        if len(held) > 4:
+            held.clear()
+        n = problem.layout.n
+        buf, J, H, opt = ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)), \
+            ncp.options_array(options)
+        bundle = bundles.solver(**{name: getattr(buf, name) for name in bundles.SOLVER_FIELDS if hasattr(buf, name)},
+                                J=J, H=H, opt=opt)
+        entry = held[id(options)] = (buf, J, H, opt, options, bundle)
+    return entry
+
+
+def solver_bundles(problem: StepProblem, options: ncp.SolverOptions):
+    """The bundles.Solver of a solve with options and of its polishing step (for
+    repeat_kernels.step), and their ncp.Buffers."""
+    main, polish = _buffers(problem, options), _buffers(problem, _polishing(problem, options))
+    return main[5], polish[5], main[0], polish[0]
 
 
 def _polishing(problem: StepProblem, options: ncp.SolverOptions) -> ncp.SolverOptions:

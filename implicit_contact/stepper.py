@@ -442,33 +442,95 @@ class ImplicitContactStepper:
     def _context(self, h, candidates, pairs, problem, att) -> "_Context":
         """What a committed step leaves for _repeat_step: its candidates, which of them it solved,
         the known lower bounds of their gaps for the next far-pair test (_known_gap), its problem
-        and solve-loop state, the fixed bodies' poses."""
-        w = self._world
+        and solve-loop state, and the buffers repeat_kernels.step fills (one bundle)."""
         P = np.array(candidates, dtype=np.int64).reshape(-1, 2)
         near = set(pairs)
         mask = np.array([pair in near for pair in candidates], np.bool_)
         gaps = np.array([_nan_if_none(self._known_gap(i, j)) for i, j in candidates])
-        source = None
         eligible = np.array([self._gap_bound_applies(i, j) for i, j in pairs], np.bool_)
+        ctx = _Context(h, P, mask, gaps, problem, att, eligible)
         if problem is not None:
-            source = next(c[3] for c in self._problems.values() if c[0] is problem)
-        ctx = _Context(h, P, mask, gaps, problem, att, source, eligible)
-        if problem is not None:
-            n, npairs = problem.layout.n, len(att.specs)
-            ctx.z0, ctx.flags, ctx.near_gaps = np.zeros(n), np.zeros(npairs, np.int64), np.zeros(npairs)
-            ctx.V_solved, ctx.sup_y = np.zeros_like(w.V), np.zeros((len(problem.supports), 4))
+            src = next(c[3] for c in self._problems.values() if c[0] is problem)
+            n, npairs, nc = problem.layout.n, len(att.specs), len(P)
+            ctx.sup_y = np.zeros((len(problem.supports), 4))
+            ctx.bundle = bundles.context(
+                cand=P, near=mask, far=np.zeros(nc, np.bool_), far_P=np.zeros((nc, 2), np.int64), far_g=np.zeros(nc),
+                gaps=gaps, eligible=eligible, flags=np.zeros(npairs, np.int64), near_gaps=np.zeros(npairs),
+                left=np.zeros(nc), z0=np.zeros(n), sup_y=ctx.sup_y, src=src[0], J_at=src[5], h_body=src[6],
+                sk_src=src[7], identity=np.arange(npairs, dtype=np.int64))
         return ctx
 
     def _repeat_step(self, h, t0) -> StepReport | None:
         """The step when it repeats the last one's structure: the same candidate pairs, the same
         ones left out as far, the same rows (friction rows where they were), fixed bodies where
-        they were, no recovery needed. Then the last step's problem is refreshed in place and its
-        solution carried over by kernels (repeat_kernels.prepare and finish) instead of being
-        rebuilt pair by pair; the mathematics is _one_step's (tests/test_repeat_step.py checks
-        the trajectories are the same bitwise). None when anything differs or a check of
-        _one_step would act: _one_step then takes the step from the start."""
+        they were, no recovery needed. Then everything between reading DART and writing it back
+        is one compiled call (repeat_kernels.step: the kernels _one_step calls one by one, on the
+        last step's problem refreshed in place) instead of being rebuilt pair by pair; the
+        mathematics is _one_step's (tests/test_repeat_step.py checks the trajectories are the same
+        bitwise). None when anything differs or a check of _one_step would act: _one_step then
+        takes the step from the start."""
         ctx = self._ctx
-        if ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons():
+        w = self._world
+        if ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons() or w.moving_unbounded:
+            return None
+        if ctx.problem is None:
+            return self._repeat_free_flight(ctx, h, t0)
+        problem, att = ctx.problem, ctx.att
+        memory = self._last
+        t = problem.tables
+        lay = problem.layout
+        fat = self._fat
+        if len(memory) != len(t.pair_i) or fat is None:
+            return None
+        C = ctx.bundle
+        for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
+            last = self._last_support.get(sp.key)
+            if last is None or len(last[0]) != ss.y.stop - ss.y.start:
+                return None
+            ctx.sup_y[s, :len(last[0])], ctx.sup_y[s, 3] = last[0], last[1]
+        tol = self.options.contact_tolerance
+        opts = self._retry_options() if self._retrying else self.options.solver
+        S, SP, buf, pbuf = step_solver.solver_bundles(problem, opts)
+        new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
+        self._read_dart()
+        args = (w.bundle, problem.bundle, S, SP, C)
+        tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h, tol,
+                self.options.solver.tol, _TOUCH, _AXIS_LIMIT, self.options.skip_far_pairs)
+        code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], True, *tail)
+        if code == rk_repeat.NEED_COAL:
+            self._refresh_fat(w.margins)
+            fat = self._fat
+            code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
+        problem._invalidate()
+        problem.h = h
+        if code != rk_repeat.OK:
+            return None
+        w.raw_valid = False
+        self._commit_world(w.V_solved, h)
+        self._last = memory.carried_arrays(new_f, new_z, new_rep)
+        if len(ctx.gaps) != len(att.specs):       # pairs left out: their bounds after the step
+            far = ~ctx.near
+            left = ctx.gaps[far]
+            self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g)
+                         for (i, j), g in zip(ctx.candidates[far], left)}
+        else:
+            self._far = {}
+        if problem.supports:
+            self._last_support = {sp.key: (new_z[ss.y].copy(), float(new_z[ss.sigma]), problem.support_wrench(new_z, s))
+                                  for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
+        polished = pbuf.fbuf[ncp.F_RESIDUAL] < buf.fbuf[ncp.F_RESIDUAL] and \
+            buf.fbuf[ncp.F_RESIDUAL] > 1e-3 * opts.tol
+        iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
+        residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
+        message = (f"Converged in {int(buf.info[ncp.I_ITER])} iterations: natural residual "
+                   f"{float(buf.fbuf[ncp.F_RESIDUAL]):.3g} <= tol {opts.tol:.3g}.")
+        contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
+        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n)
+
+    def _repeat_free_flight(self, ctx, h, t0) -> StepReport | None:
+        """_repeat_step when no pair was near: the same candidates, all far, and still out of reach
+        at free flight: every skeleton takes its free step."""
+        if self._supports:
             return None
         w = self._world
         state = self._read(h)
@@ -481,71 +543,33 @@ class ImplicitContactStepper:
         far = np.zeros(len(P), np.bool_)
         if self.options.skip_far_pairs:
             sk.far_test(P, ctx.gaps, w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff, w.VF, h, tol, far)
-        if not np.array_equal(~far, ctx.near):
+        if not far.all():
             return None
-        Pf = P[far]
-        left = np.empty(len(Pf))
-        if ctx.problem is None:
-            if self._supports:
-                return None
-            if len(Pf) and sk.far_after(Pf, ctx.gaps[far], w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff,
-                                        w.VF, h, tol, left):
-                return None
-            self._commit(state, state.v_free)
-            self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g)
-                         for (i, j), g in zip(Pf, left)}
-            ctx.gaps[far] = left
-            return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
-        problem, att = ctx.problem, ctx.att
-        memory = self._last
-        t = problem.tables
-        lay = problem.layout
-        if len(memory) != len(t.pair_i):
+        left = np.empty(len(P))
+        if len(P) and sk.far_after(P, ctx.gaps, w.ob_body, w.ob_radius, w.bd_kind, w.bd_sk, w.sk_voff, w.VF, h, tol,
+                                   left):
             return None
-        sup_y = ctx.sup_y
-        for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
-            last = self._last_support.get(sp.key)
-            if last is None or len(last[0]) != ss.y.stop - ss.y.start:
-                return None
-            sup_y[s, :len(last[0])], sup_y[s, 3] = last[0], last[1]
-        z0 = ctx.z0
-        src = ctx.source
-        if rk_repeat.prepare(t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
-                             t.scale, t.sup_i, t.sup_f, *src, w.VF, h, t.body_dim, problem._pos_rows, t.sup_body,
-                             t.sup_c, t.sup_er, t.sup_mun, memory.pair_i, memory.pair_f, memory.z, memory.rep,
-                             ctx.identity, _TOUCH, _AXIS_LIMIT, sup_y, z0) != rk_repeat.OK:
-            return None
-        problem._invalidate()
-        problem.h = h
-        result = self._solve(problem, z0, sync=False)
-        if not result.success:
-            return None
-        x = result.x
-        R, p = problem._work[0], problem._work[1]
-        if rk_repeat.finish(t.pair_i, t.pair_f, t.fpar, t.sk_i, x, problem._rep, R, p, tol, self.options.solver.tol,
-                            _TOUCH, ctx.flags, src[7], src[8], w.VF, ctx.V_solved, Pf, ctx.gaps[far], left,
-                            w.ob_body, w.ob_radius, w.ob_bounded, w.bd_kind, w.bd_sk, w.sk_voff, state.margins, h,
-                            ctx.eligible, ctx.near_gaps) != rk_repeat.OK:
-            return None
-        v_solved = [ctx.V_solved[w.sk_voff[s]:w.sk_voff[s] + w.sk_nv[s]] for s in range(len(self.scene.skeletons))]
-        self._commit(state, v_solved)
-        self._last = memory.carried(problem, x)
-        self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g)
-                     for (i, j), g in zip(Pf, left)} if len(Pf) else {}
-        if problem.supports:
-            self._last_support = {sp.key: (x[ss.y].copy(), float(x[ss.sigma]), problem.support_wrench(x, s))
-                                  for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
-        ctx.gaps[far] = left
-        ctx.gaps[~far] = ctx.near_gaps
-        contacts = _LazyContacts(self, problem, self._last.z, att.specs, self._last.rep)
-        return StepReport(True, result.iterations, result.residual, result.status.name, contacts, t0 + h, 1,
-                          result.message, lay.n)
+        self._commit(state, state.v_free)
+        self._far = {frozenset((self._objects[i].key, self._objects[j].key)): float(g) for (i, j), g in zip(P, left)}
+        ctx.gaps[:] = left
+        return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + h, 1, "no pair near", 0)
 
     def _read(self, h) -> "_StepState":
         """DART's state at l: each mobile skeleton's q, v, M and force (adapter.read_dynamics) and
         the poses of fixed and articulated bodies, into the world buffers; then (step_kernels) the
         free-flight velocities v + h M^-1 force, every body's pose now and after a free step, and
         each piece's motion margin for the broadphase."""
+        w = self._world
+        self._read_dart()
+        # forces, given poses, free flight, poses, margins (step_kernels.kinematics); whether a
+        # fixture moved since the last read (its unbounded pieces' boxes, _repeat_step); the
+        # "midpoint" quasi-rigid scheme also needs the poses half a step on at v (see _problem)
+        w.fixed_moved = sk.kinematics(w.bundle, h, 10.0 * self.options.contact_tolerance,
+                                      bool(self._trapezoidal_skeletons()))
+        return _StepState(h, w.states, w.v_free, w.poses_now, w.poses_pred, w.margins)
+
+    def _read_dart(self):
+        """What _read reads of DART into the world buffers (step_kernels.kinematics does the rest)."""
         scene, w = self.scene, self._world
         raw = not w.raw_valid
         for rec, (q, v, tau, fext, _), M, cg in w.skeleton_views:
@@ -554,12 +578,6 @@ class ImplicitContactStepper:
             adapter.read_dynamics(rec, M, cg)
         for b in w.read_bodies_list:
             adapter.read_body(scene.bodies[b], w.TG[b], w.J_views.get(b))
-        # forces, given poses, free flight, poses, margins (step_kernels.kinematics); whether a
-        # fixture moved since the last read (its unbounded pieces' boxes, _repeat_step); the
-        # "midpoint" quasi-rigid scheme also needs the poses half a step on at v (see _problem)
-        w.fixed_moved = sk.kinematics(w.bundle, h, 10.0 * self.options.contact_tolerance,
-                                      bool(self._trapezoidal_skeletons()))
-        return _StepState(h, w.states, w.v_free, w.poses_now, w.poses_pred, w.margins)
 
     def _candidates(self, state, keep) -> frozenset:
         """Pairs of pieces whose boxes (now and after a free step, grown by their motion margins)
@@ -581,15 +599,22 @@ class ImplicitContactStepper:
         fat = self._fat
         inside = sk.grown_boxes(w.bundle, w.no_box if fat is None else fat[0], w.no_box if fat is None else fat[1])
         if fat is None or not inside:
-            m = state.margins[:, None]
-            slack = m + _FAT_SLACK * self._sizes[:, None]
-            flo, fhi = glo - slack, ghi + slack
-            found = [p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)]
-            self._fat = fat = (flo, fhi, np.array(found, dtype=np.int64).reshape(-1, 2))
-        P = fat[2]
-        ok = np.empty(len(P), np.bool_)
+            self._refresh_fat(state.margins)
+            fat = self._fat
+        P, ok = fat[2], fat[3]
         sk.overlapping(P, glo, ghi, ok)
         return P[ok]
+
+    def _refresh_fat(self, margins):
+        """Query coal on the fat boxes of the grown boxes (see _candidates): (fat lo, fat hi, the
+        pairs found (n, 2), an overlap mask buffer)."""
+        w = self._world
+        m = margins[:, None]
+        slack = m + _FAT_SLACK * self._sizes[:, None]
+        flo, fhi = w.glo - slack, w.ghi + slack
+        found = np.array([p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)],
+                         dtype=np.int64).reshape(-1, 2)
+        self._fat = (flo, fhi, found, np.empty(len(found), np.bool_))
 
     def _allowed(self, i, j) -> bool:
         """Pieces that may touch: two bodies, not of one skeleton (no self-collision, DART's
@@ -713,6 +738,13 @@ class ImplicitContactStepper:
                     for k, spec in enumerate(specs)]
         return contacts, PairMemory(problem, z, specs)
 
+    def _commit_world(self, V, h):
+        """_commit from the world vector V of solved velocities (no midpoint scheme)."""
+        self._world.raw_valid = False
+        for (rec, (_, v_prev, _, _, _), _, _), o, k in zip(self._world.skeleton_views, self._world.sk_voff,
+                                                           self._world.sk_nv):
+            adapter.write_velocities_and_integrate(rec, V[o:o + k], v_prev, h)
+
     def _commit(self, state, velocities):
         """Write v+ and let DART integrate q+ = q (+) h v+ for every mobile skeleton."""
         self._world.raw_valid = False
@@ -821,16 +853,17 @@ class ImplicitContactStepper:
         return self._far.get(frozenset((oi.key, oj.key)))
 
     # -- pieces of a step ------------------------------------------------------------------------
+    def _retry_options(self) -> ncp.SolverOptions:
+        """The solver options of a retried step's substeps: they are the hard ones (measured: a box
+        slapping flat onto the ground converges in ~100 LM iterations), so a larger budget."""
+        if self._retry_solver is None:
+            opts = self.options.solver
+            self._retry_solver = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
+        return self._retry_solver
+
     def _solve(self, problem, z0, sync=True):
         """step_solver.solve (compiled, polished; see there), with the retry policy's budget."""
-        opts = self.options.solver
-        if self._retrying:
-            # substeps of a retried step are the hard ones (measured: a box slapping flat onto the
-            # ground converges in ~100 LM iterations); give them a larger budget
-            if self._retry_solver is None:
-                self._retry_solver = replace(opts, max_iterations=self.options.retry_iterations_factor
-                                             * opts.max_iterations)
-            opts = self._retry_solver
+        opts = self._retry_options() if self._retrying else self.options.solver
         try:
             return step_solver.solve(problem, z0, opts, sync)
         except (ZeroDivisionError, FloatingPointError, OverflowError, ValueError) as exc:
@@ -1121,6 +1154,7 @@ class _World:
             reach.append(r)
         self.ob_reach = np.array(reach, float)
         self.unbounded = [k for k, o in enumerate(objects) if o.local_box is None]
+        self.moving_unbounded = any(bodies[objects[k].body].kind != adapter.FIXED for k in self.unbounded)
         self.fixed = np.array([b.index for b in bodies if b.kind == adapter.FIXED], np.int64)
         self.R_fixed, self.p_fixed = np.full((len(self.fixed), 3, 3), np.nan), np.full((len(self.fixed), 3), np.nan)
         self.fixed_moved = True
@@ -1179,22 +1213,9 @@ class _Context:
     gaps: np.ndarray           # per candidate: a known lower bound of its gap now (NaN: none)
     problem: object            # the step's StepProblem (None: no pair was near)
     att: object                # its solve loop's state (specs, skeletons, bodies)
-    source: tuple              # the problem's world-buffer source (rows/tables.fill_state)
     eligible: np.ndarray       # per solved pair: whether a known gap can leave it out (_gap_bound_applies)
-    # buffers of _repeat_step (made with the context when a problem was solved)
-    z0: np.ndarray = None
-    flags: np.ndarray = None
-    near_gaps: np.ndarray = None
-    V_solved: np.ndarray = None
-    sup_y: np.ndarray = None
-
-    @property
-    def identity(self) -> np.ndarray:
-        """Memory row of every pair: its own (the pairs persist in the same rows)."""
-        rows = self.__dict__.get("_identity")
-        if rows is None:
-            rows = self.__dict__["_identity"] = np.arange(len(self.att.specs), dtype=np.int64)
-        return rows
+    bundle: object = None      # the arrays repeat_kernels.step compares and fills (bundles.Context)
+    sup_y: np.ndarray = None   # the support blocks' warm starts (y, sigma) it is given
 
 
 class _LazyContacts(Sequence):
