@@ -21,7 +21,7 @@ WORLD_FIELDS = ("sk_nv", "sk_voff", "sk_moff", "bd_kind", "bd_sk", "bd_joff", "o
                 "ob_centre", "ob_half", "ob_reach", "ob_radius", "exact_lo", "exact_hi", "is_mobile", "fixed",
                 "read_bodies", "Q", "V", "TAU", "FEXT", "CG", "MB", "FB", "VF", "JB", "TG", "R_given", "p_given",
                 "R_now", "p_now", "th_now", "R_pred", "p_pred", "th_pred", "R_half", "p_half", "th_half",
-                "margins", "glo", "ghi", "R_fixed", "p_fixed", "SPK", "SPD", "SPQ0", "V_solved")
+                "margins", "glo", "ghi", "R_fixed", "p_fixed", "SPK", "SPD", "SPQ0", "V_solved", "DV_solved")
 TABLE_FIELDS = ("body_i", "body_f", "body_jac", "fpar", "sk_i", "sk_M", "v0", "hforce", "pair_i", "pair_f",
                 "sup_i", "sup_f", "loc_idx", "loc_off", "scale", "body_dim", "pos_rows", "sup_body", "sup_c",
                 "sup_er", "sup_mun", "lower", "upper", "rep", "st_R", "st_p", "st_w", "st_vo", "st_T", "FL", "JL",

@@ -543,10 +543,12 @@ def write_velocities_and_integrate(rec: SkeletonRecord, v_next: np.ndarray, v_pr
     skel.setAccelerations((v_next - v_prev) / h)
 
 
-def finish_step(world, h: float) -> None:
-    """What World.step() does after integrating: clear external forces and commands, advance time."""
-    for s in range(world.getNumSkeletons()):
-        sk = world.getSkeleton(s)
+def finish_step(world, h: float, skeletons=None) -> None:
+    """What World.step() does after integrating: clear external forces and commands, advance time.
+    skeletons: the world's skeletons, if the caller holds them."""
+    if skeletons is None:
+        skeletons = [world.getSkeleton(s) for s in range(world.getNumSkeletons())]
+    for sk in skeletons:
         sk.clearExternalForces()
         sk.clearInternalForces()
     world.setTime(world.getTime() + h)

@@ -181,6 +181,8 @@ def step(W, T, S, SP, C, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, 
             new_rep[i, q] = T.rep[i, q]
     for i in range(x.shape[0]):
         new_z[i] = x[i]
+    for i in range(W.V.shape[0]):
+        W.DV_solved[i] = (W.V_solved[i] - W.V[i]) / h       # DART's accelerations of the step
     # the next far-pair test's bounds: far pairs their bounds after the step, the others known_gaps
     j = 0
     n = 0

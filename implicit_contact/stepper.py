@@ -140,7 +140,7 @@ POLICIES = ("raise", "warn", "retry")
 DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
 _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
 _TOUCH = recovery.TOUCH   # scaled normal impulse (units of h m g) above which a pair counts as touching
-_FAT_SLACK = 0.05   # fat broadphase boxes: grown by this fraction of a piece's size (plus its motion)
+_FAT_SLACK = 0.25   # fat broadphase boxes: grown by this fraction of a piece's size (plus 3 motion margins)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -266,7 +266,7 @@ class ImplicitContactStepper:
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
             report = self._substeps(h / n, n)
             if report.success:
-                adapter.finish_step(self.world, h)
+                adapter.finish_step(self.world, h, self._world.all_skeletons)
             else:
                 adapter.restore(self.world, snap)
                 self._world.raw_valid = False
@@ -328,26 +328,23 @@ class ImplicitContactStepper:
         (into the world buffers, used by the step's first read) and checked, then the world's
         snapshot for a failed step."""
         w = self._world
-        gravity = np.asarray(self.world.getGravity(), float)
-        if not np.all(np.isfinite(gravity)):
+        gravity = self.world.getGravity()
+        gg = float(gravity @ gravity)
+        if not math.isfinite(gg):
             raise ValueError(f"the world has non-finite gravity {self.world.getGravity()}; the stepper "
                              "refuses to step it.")
-        self._gravity_norm = float(np.linalg.norm(gravity))
-        views = []
+        self._gravity_norm = math.sqrt(gg)
         for rec, (q, v, tau, fext, dv), _, _ in w.skeleton_views:
             adapter.read_raw(rec, q, v, tau, fext, dv)
-            views.append((rec.skeleton, q, v, dv, tau))
         if not sk.all_finite(w.Q, w.V, w.TAU, w.FEXT):
             self._check_state_finite()
         w.raw_valid = True
-        if w.world_skeletons is None or \
-                self.world.getNumSkeletons() != len(w.world_skeletons) + len(views) + w.no_dofs:
+        if w.all_skeletons is None or self.world.getNumSkeletons() != len(w.all_skeletons):
             # (again if the world gained or lost skeletons since the stepper was built)
             mine = {rec.skeleton.getName() for rec in self.scene.skeletons}
-            every = [self.world.getSkeleton(i) for i in range(self.world.getNumSkeletons())]
-            w.world_skeletons = [x for x in every if x.getName() not in mine and x.getNumDofs() > 0]
-            w.no_dofs = sum(1 for x in every if x.getNumDofs() == 0)
-        return adapter.snapshot(self.world, w.world_skeletons, views)
+            w.all_skeletons = [self.world.getSkeleton(i) for i in range(self.world.getNumSkeletons())]
+            w.world_skeletons = [x for x in w.all_skeletons if x.getName() not in mine and x.getNumDofs() > 0]
+        return adapter.snapshot(self.world, w.world_skeletons, w.snapshot_views)
 
     def _check_state_finite(self):
         """Refuse, before anything is touched, a state DART accepts but no step can use."""
@@ -382,6 +379,8 @@ class ImplicitContactStepper:
 
     # -- one step --------------------------------------------------------------------------------
     def _substeps(self, h, n) -> StepReport:
+        if n == 1:
+            return self._one_step(h)
         total_it, worst = 0, 0.0
         report = None
         for _ in range(n):
@@ -490,7 +489,9 @@ class ImplicitContactStepper:
             ctx.sup_y[s, :len(last[0])], ctx.sup_y[s, 3] = last[0], last[1]
         tol = self.options.contact_tolerance
         opts = self._retry_options() if self._retrying else self.options.solver
-        S, SP, buf, pbuf = step_solver.solver_bundles(problem, opts)
+        if ctx.solver is None or ctx.solver[0] is not opts:
+            ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
+        _, S, SP, buf, pbuf = ctx.solver
         new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
         self._read_dart()
         args = (w.bundle, problem.bundle, S, SP, C)
@@ -505,8 +506,7 @@ class ImplicitContactStepper:
         problem.h = h
         if code != rk_repeat.OK:
             return None
-        w.raw_valid = False
-        self._commit_world(w.V_solved, h)
+        self._commit_world(h)
         self._last = memory.carried_arrays(new_f, new_z, new_rep)
         if len(ctx.gaps) != len(att.specs):       # pairs left out: their bounds after the step
             far = ~ctx.near
@@ -583,7 +583,7 @@ class ImplicitContactStepper:
         """Pairs of pieces whose boxes (now and after a free step, grown by their motion margins)
         overlap: coal's broadphase, queried on fat boxes and filtered exactly.
 
-        Fat boxes: each piece's grown box, grown once more by its margin plus _FAT_SLACK of its size.
+        Fat boxes: each piece's grown box, grown once more by three margins plus _FAT_SLACK of its size.
         While every grown box stays inside its fat box, the pairs whose grown boxes overlap are
         among the fat pairs coal returned last, so coal is not asked again; the exact closed
         overlap test of broadphase.py on the fat pairs gives the same candidates as a query on
@@ -610,7 +610,7 @@ class ImplicitContactStepper:
         pairs found (n, 2), an overlap mask buffer)."""
         w = self._world
         m = margins[:, None]
-        slack = m + _FAT_SLACK * self._sizes[:, None]
+        slack = 3.0 * m + _FAT_SLACK * self._sizes[:, None]
         flo, fhi = w.glo - slack, w.ghi + slack
         found = np.array([p for p in self._broadphase.candidates(flo, fhi, 0.0) if self._allowed(*p)],
                          dtype=np.int64).reshape(-1, 2)
@@ -738,12 +738,15 @@ class ImplicitContactStepper:
                     for k, spec in enumerate(specs)]
         return contacts, PairMemory(problem, z, specs)
 
-    def _commit_world(self, V, h):
-        """_commit from the world vector V of solved velocities (no midpoint scheme)."""
-        self._world.raw_valid = False
-        for (rec, (_, v_prev, _, _, _), _, _), o, k in zip(self._world.skeleton_views, self._world.sk_voff,
-                                                           self._world.sk_nv):
-            adapter.write_velocities_and_integrate(rec, V[o:o + k], v_prev, h)
+    def _commit_world(self, h):
+        """_commit of the solved velocities repeat_kernels.step left in the world buffers (V_solved,
+        and the accelerations (v+ - v) / h in DV; no midpoint scheme)."""
+        w = self._world
+        w.raw_valid = False
+        for skel, v_next, dv in w.commit_views:
+            skel.setVelocities(v_next)
+            skel.integratePositions(h)
+            skel.setAccelerations(dv)
 
     def _commit(self, state, velocities):
         """Write v+ and let DART integrate q+ = q (+) h v+ for every mobile skeleton."""
@@ -1164,7 +1167,7 @@ class _World:
         self.glo, self.ghi = np.zeros((no, 3)), np.zeros((no, 3))   # the grown boxes of the step
         self.no_box = np.zeros((0, 3))
         self.Q, self.V, self.FB, self.VF = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
-        self.CG, self.V_solved = np.zeros(nvw), np.zeros(nvw)
+        self.CG, self.V_solved, self.DV_solved = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
         # joint springs and dampers per dof (zero where none; dart_adapter._spring_damper)
         self.SPK, self.SPD, self.SPQ0 = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
         for s, rec in enumerate(scene.skeletons):
@@ -1173,8 +1176,8 @@ class _World:
                 self.SPK[o:o + k], self.SPD[o:o + k], self.SPQ0[o:o + k] = rec.spring_damper
         self.TAU, self.FEXT, self.DV = np.zeros(nvw), np.zeros(nvw), np.zeros(nvw)
         self.raw_valid = False      # Q, V, TAU, FEXT hold the world as it is now (read by _begin)
+        self.all_skeletons = None   # the world's skeletons (_begin)
         self.world_skeletons = None  # the world's other skeletons with dofs (for snapshots)
-        self.no_dofs = 0
         self.MB = np.zeros(max(nM, 1))
         self.JB = np.zeros(max(at, 1))
         self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
@@ -1199,6 +1202,9 @@ class _World:
         self.skeleton_views = [(rec, tuple(a[o:o + k] for a in (self.Q, self.V, self.TAU, self.FEXT, self.DV)),
                                 self.MB[mo:mo + k * k].reshape(k, k), self.CG[o:o + k])
                                for rec, o, mo, k in zip(scene.skeletons, self.sk_voff, self.sk_moff, nv)]
+        self.snapshot_views = [(rec.skeleton, q, v, dv, tau) for rec, (q, v, tau, _, dv), _, _ in self.skeleton_views]
+        self.commit_views = [(rec.skeleton, self.V_solved[o:o + k], self.DV_solved[o:o + k])
+                             for rec, o, k in zip(scene.skeletons, self.sk_voff, nv)]
         self.J_views = {b.index: self.JB[self.bd_joff[b.index]:self.bd_joff[b.index] + 6 * nv[b.skeleton_index]]
                         .reshape(6, nv[b.skeleton_index]) for b in bodies if b.kind == adapter.ARTICULATED}
         self.bundle = bundles.world(**{name: getattr(self, name) for name in bundles.WORLD_FIELDS})
@@ -1215,6 +1221,7 @@ class _Context:
     att: object                # its solve loop's state (specs, skeletons, bodies)
     eligible: np.ndarray       # per solved pair: whether a known gap can leave it out (_gap_bound_applies)
     bundle: object = None      # the arrays repeat_kernels.step compares and fills (bundles.Context)
+    solver: tuple = None       # (options, their solver bundles and buffers: step_solver.solver_bundles)
     sup_y: np.ndarray = None   # the support blocks' warm starts (y, sigma) it is given
 
 
