@@ -35,10 +35,10 @@ up to ~2x between invocations (see /work/shared/reference/dart_native.md).
 Executors. The runs are independent: a local process pool (ProcessPoolExecutor, `--workers`,
 default os.cpu_count(), "spawn" start so no forked dartpy/tqdm state) by default; `--workers 0`
 runs them in this process; `--scheduler tcp://host:8786` sends them to a Dask cluster (optional
-extra `cluster`; dask.distributed is imported only then). The scheduler (it unpickles the task
-graph) and the workers must import this repository: start both with it on PYTHONPATH,
-`PYTHONPATH=/path/to/repo dask scheduler` and `PYTHONPATH=/path/to/repo dask worker tcp://host:8786`
-(from the repository root is not enough: the `dask` script puts its own directory on sys.path).
+extra `cluster`; dask.distributed is imported only then): `dask scheduler` on one machine and
+`dask worker tcp://host:8786` on each, in environments where this project is installed. The
+study's own modules (scenes/, comparisons/) are uploaded to the scheduler and the workers when the
+study connects (comparisons.executors.ship_checkout); the workers restart once to import them.
 A run that raises is recorded as failed (note "run failed: ...") and the others go on; the
 command then exits with status 1.
 

@@ -4,12 +4,25 @@ A study is a list of small frozen configs and a top-level ``run(config) -> recor
 that both executors can pickle them. ``completed`` yields (config, record) as runs finish; a run
 that raises becomes ``failed(config, error)`` (one failed configuration must not discard the
 others). A user who outgrows one machine passes a Dask scheduler address instead of rewriting.
+
+On Dask, the scheduler (it unpickles the task graph) and the workers need to import the study's
+modules, which live in this checkout (``scenes/``, ``comparisons/``), not in the installed package.
+``completed`` ships them: their sources are uploaded to the scheduler and to every worker's nanny
+(distributed's ``UploadDirectory`` plugin, which also reaches workers that join later) and the
+workers are restarted with the upload on their path. A cluster needs only ``pip install
+'.[cluster]'`` of this project on its machines.
 """
 from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
 import os
+import shutil
+import tempfile
+from pathlib import Path
+
+CHECKOUT = Path(__file__).resolve().parents[1]
+SHIPPED = ("scenes", "comparisons")  # the checkout's packages a study's runs import
 
 
 def completed(run, configs, failed, scheduler=None, max_workers=None):
@@ -24,6 +37,7 @@ def completed(run, configs, failed, scheduler=None, max_workers=None):
         except ImportError as error:
             raise ImportError("--scheduler needs dask.distributed: pip install '.[cluster]'") from error
         with Client(scheduler) as client:
+            ship_checkout(client)
             futures = {client.submit(run, c, pure=False): c for c in configs}
             for future in as_completed(futures):
                 yield futures[future], _result(future, futures[future], failed)
@@ -44,6 +58,22 @@ def completed(run, configs, failed, scheduler=None, max_workers=None):
         futures = {pool.submit(run, c): c for c in configs}
         for future in concurrent.futures.as_completed(futures):
             yield futures[future], _result(future, futures[future], failed)
+
+
+def ship_checkout(client) -> None:
+    """Upload the sources of SHIPPED to the client's scheduler and workers, on their sys.path.
+
+    The workers restart (once per call) so that their processes start with the upload on their
+    path; a worker that joins later gets it from its nanny. Nothing but .py sources is sent."""
+    from distributed.diagnostics.plugin import UploadDirectory
+
+    with tempfile.TemporaryDirectory() as tmp:
+        stage = Path(tmp) / "implicit_contact_checkout"
+        for name in SHIPPED:
+            shutil.copytree(CHECKOUT / name, stage / name,
+                            ignore=shutil.ignore_patterns("__pycache__", "out", "*.pyc"))
+        plugin = UploadDirectory(str(stage), mode="all", update_path=True, restart_workers=True)
+    client.register_plugin(plugin)
 
 
 def _result(future, config, failed):

@@ -32,12 +32,11 @@ per cell a cell's value is 0 or 1, so both are coarse: add trials (--trials) to 
 
 Executors and scale. Trials are independent: a local process pool on all cores by default
 (``--workers``, "spawn" start), ``--workers 0`` in this process, ``--scheduler tcp://host:8786`` on a
-Dask cluster (see comparisons/executors.py and comparisons/energy_loss.py for starting one with this
-repository on PYTHONPATH). A tqdm bar counts finished trials. Every finished trial is appended at
-once to the results file (``grasp_trials.csv``) with the study's settings; a rerun with the same
-settings skips the trials already there (those that raised run again), so an interrupted study
-resumes, and the original 100,800 trials (--trials 265 on this grid) are reached by adding
-workers, not by rewriting.
+Dask cluster (the study uploads scenes/ and comparisons/ to it, see comparisons/executors.py). A
+tqdm bar counts finished trials. Every finished trial is appended at once to the results file
+(``grasp_trials.csv``) with the study's settings; a rerun with the same settings skips the trials
+already there (those that raised run again), so an interrupted study resumes, and the original
+100,800 trials (--trials 265 on this grid) are reached by adding workers, not by rewriting.
 Throughput: trials per second per core = trials / (sum of their wall times), and trials per second
 of the whole run.
 
@@ -520,8 +519,7 @@ def main(argv=None) -> StudyResult:
     errors = [r for r in result.rows if r["kind"] == "run error"]
     if errors:
         print(f"{len(errors)} trials raised (run error), e.g. {errors[0]['reason']}; they are not results. "
-              "Run the same command again to retry them (with --scheduler, every worker must import this "
-              "checkout: start the workers from it or put it on their PYTHONPATH).")
+              "Run the same command again to retry them.")
     return result
 
 

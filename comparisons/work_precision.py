@@ -62,8 +62,8 @@ Horizons. Default: the horizons above (disc 5 s, slide 1 s, spheres 4 s, ellipso
 coarse sphere reference (h = 2e-3 s); a smoke run, not a measurement.
 
 Executors: a local process pool (ProcessPoolExecutor, "spawn", --workers, default
-os.cpu_count()), --workers 0 in this process, --scheduler tcp://host:8786 for Dask (see
-comparisons.energy_loss for how to start a cluster that imports this repository). A run that
+os.cpu_count()), --workers 0 in this process, --scheduler tcp://host:8786 for Dask (the
+study uploads scenes/ and comparisons/ to the cluster, see comparisons.executors). A run that
 raises becomes a record with the error in its note; the command then exits with status 1.
 
 Outputs (in --out, default comparisons/out): work_precision_<scene>.png (error vs wall time, one
