@@ -6,25 +6,26 @@ and <= 50 ms per step with 100 bodies)? The scene is comparisons.stability's man
 exponent-4 superquadrics dropped in layers into a box of five fixed half-spaces, h = 0.01 s; the
 first bodies land at about step 10. Every run steps from the same initial state; each step is
 timed (wall and CPU time of this process: the machine is shared, CPU time wanders less) and the
-table lists the steps with at least one active contact (p_n > 0).
+table lists the steps with at least one active contact (p_n > 0). DART's own step of the same
+layout with BoxShapes (stability.many_bodies_world, NATIVE) is stepped alternately with the
+implicit one, so that the two medians and their ratio come from the same minutes of the machine.
 
 --jacobian dense | sparse forces the Jacobian storage of formulation.StepProblem (default: auto,
 sparse from formulation.SPARSE_MIN_UNKNOWNS unknowns); --threshold measures the crossover on
-the 10- and 30-body steps (one problem per body count, its Jacobian factorised both ways).
+the 10- and 30-body steps (one problem per body count, its Jacobian assembled and J + I
+factorised both ways).
 
-Measured (shared 2-core VM, steps 10-15, median CPU ms per step with contacts; the runs take
-the same Newton paths, contacts and unknowns both ways):
-    bodies  contacts  unknowns   dense J + dense LU   sparse J + splu, superquadric kernel
-        10       4-9   283-349                  158                  165 (dense below 250 unknowns)
-        30      5-17   748-869                 1776                  389
-       100     17-67  2737-3333               18924                 2627   (free fall: 1770 -> 359)
-    fit t = a n_contacts^b: before 0.0096 s n^1.88, after 0.0212 s n^1.18 (CPU time).
-Then pairs that cannot close within the step left out of the MCP (StepperOptions.skip_far_pairs;
-same trajectories): 100 bodies ~175 instead of ~290 pairs per landing step; median CPU ms per
-landed step 65 / 190 / 915 for 10 / 30 / 100 bodies (free fall 11 / 25 / 79), fit
-t = 0.0089 s n^1.17.
-What remains is Python per pair: ~175 pairs x ~30 Newton iterations per step (two solves: the
-stepper re-solves after switching friction rows on) x ~0.2 ms per pair and iteration.
+History (shared 2-core VM, median CPU ms per landed step, steps 10-15):
+    Python rows, dense J:                     158 / 1776 / 18924 ms for 10 / 30 / 100 bodies
+    sparse J + splu (superquadric kernel):    165 /  389 /  2627
+    far pairs left out of the MCP:             65 /  190 /   915, fit t = 0.0089 s n^1.17
+    compiled rows and dense solver (issue 12): 16-28 / 42-44 / 208-229, fit t = 0.004-0.008 s n^0.8-1.0;
+        DART's native step of the box layout in the same run: 0.38 / 0.63 / 1.7 ms.
+What remains at 100 bodies (cProfile of steps 11-15): ~13 Newton iterations per solve, ~2 solves
+per landing step (friction rows switched on), each iteration one sparse LU (SuperLU, ~2 ms for
+~2200 unknowns) and one compiled assembly of F and J (~0.75 ms for ~175 pairs); the rest is the
+sparse driver's Python (scipy matrix objects per iteration) and, while pairs keep changing, the
+rebuilt layouts and static closest points of new pairs (Python, closest.py).
 
 Run: python -m comparisons.bench_many_bodies [--bodies 10 30 100] [--steps 16] [--jacobian auto]
 """
@@ -40,6 +41,7 @@ from comparisons import stability
 
 H = 0.01
 STEPS = 16                 # first landings at about step 10
+GOAL_100 = 0.050           # [s] per landed step with 100 bodies (issue 12)
 
 
 def _world(n):
@@ -47,18 +49,27 @@ def _world(n):
     return build(n, H, stability.IMPLICIT)
 
 
-def run(n: int, steps: int = STEPS) -> list[dict]:
-    """Per step: wall [s], cpu [s], candidate pairs, active contacts, unknowns, Newton iterations."""
+def run(n: int, steps: int = STEPS, native: bool = True) -> list[dict]:
+    """Per step: wall [s], cpu [s], candidate pairs, active contacts, unknowns, Newton iterations
+    of the implicit step, and (native) the wall time of DART's own step of the same layout with
+    BoxShapes, stepped alternately with it."""
     world = _world(n)
     stepper = ic.ImplicitContactStepper(world)
+    twin = stability.many_bodies_world(n, H, stability.NATIVE) if native else None
     out = []
     for k in range(steps):
         t0, c0 = time.perf_counter(), time.process_time()
         report = stepper.step()
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        native_wall = math.nan
+        if twin is not None:
+            t1 = time.perf_counter()
+            twin.step()
+            native_wall = time.perf_counter() - t1
         out.append({"step": k, "wall": wall, "cpu": cpu, "pairs": len(report.contacts),
                     "contacts": sum(1 for c in report.contacts if c.p_n > 0.0), "unknowns": report.unknowns,
-                    "iterations": report.iterations, "substeps": report.substeps, "success": report.success})
+                    "iterations": report.iterations, "substeps": report.substeps, "success": report.success,
+                    "native": native_wall})
         if not report.success:
             break
     return out
@@ -77,6 +88,7 @@ def fit(records: list[dict], key: str = "cpu"):
 def threshold(bodies=(10, 30), steps=STEPS):
     """Jacobian assembly + one LU, dense vs sparse, on the last step's problem of each run."""
     import scipy.linalg as la
+    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
     from implicit_contact import stepper as stepper_mod
     rows = []
@@ -90,7 +102,7 @@ def threshold(bodies=(10, 30), steps=STEPS):
     stepper_mod.ImplicitContactStepper._solve = capture
     try:
         for n in bodies:
-            run(n, steps)
+            run(n, steps, native=False)
             problem, z0 = captured["args"]
             for mode in ("dense", "sparse"):
                 p = fm.StepProblem(problem.h, problem.skeletons, problem.bodies, problem.specs, problem.layout,
@@ -99,10 +111,12 @@ def threshold(bodies=(10, 30), steps=STEPS):
                 for _ in range(5):
                     t0 = time.process_time()
                     J = p._assemble(z0, True)[1]
+                    # the Newton matrix diag(da) + diag(db) J has J's pattern and a full diagonal
+                    # (J itself can be singular at a complementary start): factorise J + I
                     if mode == "dense":
-                        la.lu_factor(J)
+                        la.lu_factor(J + np.eye(J.shape[0]))
                     else:
-                        spla.splu(J.tocsc())
+                        spla.splu((J + sp.identity(J.shape[0], format="csr")).tocsc())
                     best = min(best, time.process_time() - t0)
                 rows.append((n, problem.layout.n, mode, best))
     finally:
@@ -116,6 +130,7 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=STEPS)
     parser.add_argument("--jacobian", choices=("auto", "dense", "sparse"), default="auto")
     parser.add_argument("--threshold", action="store_true")
+    parser.add_argument("--no-native", action="store_true", help="time the implicit stepper alone")
     args = parser.parse_args(argv)
     if args.threshold:
         print(f"{'bodies':>6s} {'unknowns':>8s} {'jacobian':>8s} {'J + LU [ms]':>11s}")
@@ -126,28 +141,38 @@ def main(argv=None):
         fm.SPARSE_MIN_UNKNOWNS = 0 if args.jacobian == "sparse" else 10 ** 12
     every = []
     print(f"{'bodies':>6s} {'step':>4s} {'pairs':>5s} {'contacts':>8s} {'unknowns':>8s} {'iter':>4s} "
-          f"{'wall ms':>8s} {'cpu ms':>8s}")
+          f"{'wall ms':>8s} {'cpu ms':>8s} {'native ms':>9s}")
     summary = []
     for n in args.bodies:
-        records = run(n, args.steps)
+        records = run(n, args.steps, native=not args.no_native)
         every += records
         for r in records:
             if r["contacts"] > 0:
                 print(f"{n:6d} {r['step']:4d} {r['pairs']:5d} {r['contacts']:8d} {r['unknowns']:8d} "
-                      f"{r['iterations']:4d} {1e3 * r['wall']:8.1f} {1e3 * r['cpu']:8.1f}")
+                      f"{r['iterations']:4d} {1e3 * r['wall']:8.1f} {1e3 * r['cpu']:8.1f} {1e3 * r['native']:9.2f}")
         free = [r["cpu"] for r in records if r["contacts"] == 0 and r["pairs"] > 0]
         landed = [r for r in records if r["contacts"] > 0]
         summary.append((n, np.median(free) if free else math.nan,
+                        np.median([r["wall"] for r in landed]) if landed else math.nan,
                         np.median([r["cpu"] for r in landed]) if landed else math.nan,
+                        np.median([r["native"] for r in landed]) if landed else math.nan,
                         max((r["contacts"] for r in records), default=0),
                         max((r["unknowns"] for r in records), default=0)))
-    print(f"\n{'bodies':>6s} {'free fall cpu ms':>16s} {'landed cpu ms':>13s} {'contacts':>8s} {'unknowns':>8s}")
-    for n, free, landed, contacts, unknowns in summary:
-        print(f"{n:6d} {1e3 * free:16.1f} {1e3 * landed:13.1f} {contacts:8d} {unknowns:8d}")
+    print(f"\nmedians over the steps with contacts (native: DART's step of the same layout with BoxShapes, "
+          f"stepped alternately)")
+    print(f"{'bodies':>6s} {'free fall cpu ms':>16s} {'landed wall ms':>14s} {'landed cpu ms':>13s} "
+          f"{'native ms':>9s} {'ratio':>6s} {'contacts':>8s} {'unknowns':>8s}  goal")
+    for n, free, wall, cpu, native, contacts, unknowns in summary:
+        goal = ""
+        if n == 100:
+            goal = f"<= {1e3 * GOAL_100:.0f} ms: {'met' if wall <= GOAL_100 else 'NOT met'}"
+        print(f"{n:6d} {1e3 * free:16.1f} {1e3 * wall:14.1f} {1e3 * cpu:13.1f} {1e3 * native:9.2f} "
+              f"{wall / native:6.0f} {contacts:8d} {unknowns:8d}  {goal}")
     ab = fit(every)
     if ab is not None:
         a, b = ab
-        print(f"fit over the steps with contacts: t = {a:.4f} s * n_contacts^{b:.2f} (CPU time; goal b <= 1.2)")
+        print(f"fit over the steps with contacts: t = {a:.4f} s * n_contacts^{b:.2f} (CPU time; goal b <= 1.2: "
+              f"{'met' if b <= 1.2 else 'NOT met'})")
 
 
 if __name__ == "__main__":
