@@ -158,8 +158,8 @@ def main(argv=None):
                         np.median([r["native"] for r in landed]) if landed else math.nan,
                         max((r["contacts"] for r in records), default=0),
                         max((r["unknowns"] for r in records), default=0)))
-    print(f"\nmedians over the steps with contacts (native: DART's step of the same layout with BoxShapes, "
-          f"stepped alternately)")
+    print("\nmedians over the steps with contacts (native: DART's step of the same layout with BoxShapes, "
+          "stepped alternately)")
     print(f"{'bodies':>6s} {'free fall cpu ms':>16s} {'landed wall ms':>14s} {'landed cpu ms':>13s} "
           f"{'native ms':>9s} {'ratio':>6s} {'contacts':>8s} {'unknowns':>8s}  goal")
     for n, free, wall, cpu, native, contacts, unknowns in summary:
