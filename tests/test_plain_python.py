@@ -63,3 +63,15 @@ def test_scene_steps_the_same_uncompiled(name):
         np.testing.assert_allclose(a, b, rtol=0.0, atol=AGREE)
         moved |= a.size > 0 and np.abs(a).max() > 0.0
     assert moved
+
+
+def test_every_kernel_module_is_hashed_for_the_cache():
+    """_jit invalidates the cached kernels when the source of a module in KERNEL_MODULES changes
+    (numba itself keys a cached kernel to its own file only): every module that defines kernels,
+    or the bundle types they take, must be in the list."""
+    from implicit_contact import _jit
+    package = Path(_jit.__file__).parent
+    defining = {str(p.relative_to(package)) for p in package.rglob("*.py")
+                if any(tag in p.read_text() for tag in ("@kernel", "generator_kernel(", "StructRef"))}
+    assert defining, "no kernel modules found"
+    assert defining <= set(_jit.KERNEL_MODULES), sorted(defining - set(_jit.KERNEL_MODULES))
