@@ -98,9 +98,10 @@ SCALING_BODIES_GOAL = 100
 PROBE_MAX_BODIES = 12       # worlds with more bodies probe only body/half-space pairs
 DEFAULT_OUT = Path(__file__).resolve().parent / "out"
 MODES = ("quick", "default", "full")
-# (bodies, wall budget [s] of stepping) per mode. Measured (dartpy 6.20, 2 cores, sparse Jacobian,
-# far pairs left out; comparisons/bench_many_bodies.py): 100 bodies take ~0.08 s per step in free
-# fall and ~0.9 s per step once 17-67 contacts are active (steps 10-15); the default's 45 s reach
+# (bodies, wall budget [s] of stepping) per mode. Measured (dartpy 6.20, 2 cores, compiled rows,
+# sparse Jacobian, far pairs left out; comparisons/bench_many_bodies.py): 100 bodies take ~0.04 s
+# per step in free fall and ~0.2 s per step once 17-67 contacts are active (steps 10-15), more as
+# the pile grows (~0.5 s at ~120 contacts, runs sharing the cores); the default's 45 s reach well
 # past the first landings. The budget is checked between steps, so one retried step can overrun it.
 MANY_BODY_BUDGETS = {"quick": ((10, 15.0),), "default": ((10, 90.0), (30, 90.0), (100, 45.0)),
                      "full": ((10, 900.0), (30, 900.0), (100, 900.0))}
@@ -1333,13 +1334,14 @@ def rows(records: dict) -> list[dict]:
     return out
 
 
-# why the scaling goal is out of reach (measured with comparisons/bench_many_bodies.py, sparse Jacobian)
-SCALING_LIMIT_WHY = ("why: every Newton iteration evaluates every pair of the MCP, touching or not, in Python "
-                     "(~0.2 ms per pair per iteration; 100 bodies carry ~175 pairs that could close within the "
-                     "step, of ~290 broadphase candidates, and take ~30 iterations per landing step, two solves "
-                     "when friction rows switch on), so the time grows with pairs times iterations, faster than "
-                     "with active contacts; sparse LU is ~2 % of it. 50 ms needs the pair rows batched across "
-                     "pairs (numpy) or compiled")
+# why the scaling goal is out of reach (measured with comparisons/bench_many_bodies.py and cProfile)
+SCALING_LIMIT_WHY = ("why: the pair rows are compiled (~4 us per pair for F and J), but a landing step of 100 "
+                     "bodies solves ~2200 unknowns by Newton with ~13 iterations per solve and ~2 solves (friction "
+                     "rows switched on), each iteration one sparse LU (SuperLU, ~2 ms) and one assembly of F and J "
+                     "(~0.75 ms for ~175 pairs), driven from Python through scipy's sparse matrices; while pairs "
+                     "keep changing, layouts and the static closest points of new pairs are rebuilt in Python. "
+                     "50 ms needs fewer iterations and a structured factorisation (the closest-point block of "
+                     "each pair eliminated, M block diagonal), not faster rows")
 
 
 def goal_row(fit: ScalingFit | None) -> dict:
