@@ -29,6 +29,7 @@ import hashlib
 import os
 
 import numba
+import numpy as np
 
 # The modules that define kernels (paths relative to the package). Keep this list complete:
 # a kernel module missing here could be served from a stale cache after an edit.
@@ -109,3 +110,12 @@ def generator_kernel(fn):
 
 
 JIT_DISABLED = bool(numba.config.DISABLE_JIT)
+
+# Flags and small integers for the call sites of kernels inside kernels. numba compiles a kernel
+# called with a bare literal (``assemble(..., False, False)``, ``evaluate(..., 1)``) once per
+# literal value, typed Literal[bool](False) or Literal[int](1), besides the bool / int64 version
+# that Python's calls use: the whole tree of a pair's rows was compiled three times (measured:
+# ~45 s of a ~140 s cold start). These are typed values, not literals, so one compilation serves
+# every call.
+TRUE, FALSE = np.bool_(True), np.bool_(False)
+ZERO, ONE, TWO = np.int64(0), np.int64(1), np.int64(2)

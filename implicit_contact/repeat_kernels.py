@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import FALSE, kernel
 from .memory import carry_pairs, known_gaps, warm_start
 from .rows import checks as rk
 from .rows import dynamics as rd
@@ -52,7 +52,7 @@ def prepare(body_i, body_f, body_jac, sk_i, sk_M, v0, hforce, pair_i, pair_f, sc
     for i in range(n):
         z0[i] = 0.0
     warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, identity, mem_i, mem_f, mem_z, mem_rep,
-               False, h, z0)
+               FALSE, h, z0)
     for s in range(sup_i.shape[0]):
         ycol, ny, scol = sup_i[s, rs.S_Y], sup_i[s, rs.S_NY], sup_i[s, rs.S_SIG]
         for a in range(ny):
@@ -105,7 +105,7 @@ def _reports_at(T, x, F):
     no_f = np.zeros(0)
     assemble(T.body_i, T.body_f, T.body_jac, T.fpar, T.sk_i, T.sk_M, T.v0, T.hforce, T.pair_i, T.pair_f, T.sup_i,
              T.sup_f, T.loc_idx, T.loc_off, no_i, np.zeros(T.loc_off.shape[0], np.int64), T.scale, no_f, x, F,
-             np.zeros((0, 0)), no_f, T.rep, T.st_R, T.st_p, T.st_w, T.st_vo, T.st_T, T.FL, T.JL, T.ws, False, False)
+             np.zeros((0, 0)), no_f, T.rep, T.st_R, T.st_p, T.st_w, T.st_vo, T.st_T, T.FL, T.JL, T.ws, FALSE, FALSE)
 
 
 @kernel
@@ -117,7 +117,7 @@ def step(W, T, S, SP, C, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, 
     the next memory (new_f, new_z, new_rep). Returns OK or why the general step must take over
     (the world buffers then hold the step's kinematics, as _read leaves them). kin: do the
     kinematics (False: a second call after coal was queried on fresh fat boxes, NEED_COAL)."""
-    if kin and kinematics(W, h, 10.0 * tol, False):
+    if kin and kinematics(W, h, 10.0 * tol, FALSE):
         return FIXED_MOVED
     if not grown_boxes(W, fat_lo, fat_hi):
         return NEED_COAL

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import bundles
 from . import ncp
-from ._jit import kernel
+from ._jit import FALSE, TRUE, kernel
 from .formulation import StepProblem
 from .rows.assemble import assemble
 
@@ -42,11 +42,11 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
         if req == ncp.REQ_F:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
-                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, False, False)
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
         elif req == ncp.REQ_J:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
-                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, True, False)
+                     st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, TRUE, FALSE)
             bad = 0
             for i in range(J.shape[0]):
                 for j in range(J.shape[1]):
@@ -66,7 +66,7 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
     if np.isfinite(fbuf[ncp.F_RESIDUAL]) and info[ncp.I_STATUS] in (ncp.S_LINE_SEARCH_FAILED, ncp.S_SINGULAR):
         assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
-                 st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, False, False)
+                 st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
 
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:

@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import ZERO, kernel
 from . import contact as rc
 
 OFF, ON, THROUGH, STALE, GAP, CONE = 1, 2, 4, 8, 16, 32
@@ -56,7 +56,7 @@ def solution_checks(pair_i, pair_f, fpar, z, rep, R, p, tol, solver_tol, touch, 
             b1 = pi[rc.P_B1]
             for q in range(3):
                 a1[q] = rep[k, rc.R_A1 + q]
-            fk = rc._world_eval(fpar[pi[rc.P_F1] + pi[rc.P_K1]], R[b1], p[b1], a1, r, G, Hw, xi, g, H, 0)
+            fk = rc._world_eval(fpar[pi[rc.P_F1] + pi[rc.P_K1]], R[b1], p[b1], a1, r, G, Hw, xi, g, H, ZERO)
             if fk < -tol:
                 f |= STALE
         p_n = s_p * zn

@@ -75,7 +75,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import ONE, TWO, kernel
 from .. import shape_kernels as sk
 
 # pair_i columns
@@ -351,7 +351,7 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     order = 2 if need_jac else 1
     for i in range(m1):
         f1[i] = _world_eval(fpar[f1o + i], R1, p1, a1, r11, G1[i], H1[i], xi, g, H, order)
-        f12[i] = _world_eval(fpar[f1o + i], R1, p1, a2, r12, G12[i], Hdummy, xi, g, H, 1)
+        f12[i] = _world_eval(fpar[f1o + i], R1, p1, a2, r12, G12[i], Hdummy, xi, g, H, ONE)
     for j in range(m2):
         f2[j] = _world_eval(fpar[f2o + j], R2, p2, a2, r22, G2[j], H2[j], xi, g, H, order)
 
@@ -474,13 +474,13 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         for j in range(1, mc):
             if fc_all[j] > fc_all[jc]:
                 jc = j
-        _world_eval(fpar[fco + jc], Rc, pc, ac, rc, Gc, Hc, xi, g, H, 2)
+        _world_eval(fpar[fco + jc], Rc, pc, ac, rc, Gc, Hc, xi, g, H, TWO)
         gnorm = math.sqrt(Gc[0] * Gc[0] + Gc[1] * Gc[1] + Gc[2] * Gc[2])
         y, at = _take(ws, at, 3)
         for q in range(3):
             uc[q] = Gc[q] / gnorm
             y[q] = ac[q] + dn_ * uc[q]
-        fy = _world_eval(fpar[fco + jc], Rc, pc, y, ry, Gy, Hdummy, xi, g, H, 1)
+        fy = _world_eval(fpar[fco + jc], Rc, pc, y, ry, Gy, Hdummy, xi, g, H, ONE)
         FL[own + row] = fy                                             # (35)
         row += 1
         kn, cn, dprev = pf[Q_K], pf[Q_C], pf[Q_DPREV]
