@@ -158,14 +158,7 @@ def _point_velocity(body_i, body_f, body_jac, v0, b, a, out):
         return
     jo = body_i[b, rb.B_JAC]
     w = np.zeros(3)
-    for i in range(3):
-        aw = 0.0
-        av = 0.0
-        for j in range(k):
-            aw += body_jac[jo + i * k + j] * v0[col + j]
-            av += body_jac[jo + (3 + i) * k + j] * v0[col + j]
-        w[i] = aw
-        out[i] = av
+    rb.twist(body_jac, jo, k, v0, col, w, out)
     if body_i[b, rb.B_ART]:
         r0 = a[0] - body_f[b, rb.B_P0]
         r1 = a[1] - body_f[b, rb.B_P0 + 1]

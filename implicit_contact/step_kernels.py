@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from ._jit import kernel
-from .rows.bodies import i_plus_k, so3_coefficients
+from .rows.bodies import i_plus_k, so3_coefficients, twist
 
 # body kinds of the world tables
 FIXED, FREE, PLANAR, ARTICULATED = 0, 1, 2, 3
@@ -119,15 +119,9 @@ def body_poses(bd_kind, bd_sk, bd_joff, sk_voff, sk_nv, Q, Vel, h, R_given, p_gi
                 vo[i] = Vel[off + 3 + i]
                 p_out[b, i] = Q[off + 3 + i] + h * vo[i]
         else:
-            jo = bd_joff[b]
+            twist(JB, bd_joff[b], k, Vel, off, w, vo)
             for i in range(3):
-                aw = 0.0
-                av = 0.0
-                for j in range(k):
-                    aw += JB[jo + i * k + j] * Vel[off + j]
-                    av += JB[jo + (3 + i) * k + j] * Vel[off + j]
-                w[i], vo[i] = aw, av
-                p_out[b, i] = p_given[b, i] + h * av
+                p_out[b, i] = p_given[b, i] + h * vo[i]
                 for j in range(3):
                     R0[i, j] = R_given[b, i, j]
         if h == 0.0:
@@ -149,6 +143,7 @@ def body_poses(bd_kind, bd_sk, bd_joff, sk_voff, sk_nv, Q, Vel, h, R_given, p_gi
 def motion_margins(ob_body, ob_reach, bd_kind, bd_sk, bd_joff, sk_voff, sk_nv, VF, JB, h, base, margins):
     """Per piece: base + h/2 (|v| + |omega| reach) at the free-flight velocities (the MCP's v+
     differs from free flight: half a free step more of motion is allowed)."""
+    w, vo = np.zeros(3), np.zeros(3)
     for o in range(ob_body.shape[0]):
         b = ob_body[o]
         margins[o] = base
@@ -164,18 +159,9 @@ def motion_margins(ob_body, ob_reach, bd_kind, bd_sk, bd_joff, sk_voff, sk_nv, V
             lin = math.sqrt(VF[off + 3] ** 2 + VF[off + 4] ** 2 + VF[off + 5] ** 2)
             ang = math.sqrt(VF[off] ** 2 + VF[off + 1] ** 2 + VF[off + 2] ** 2)
         else:
-            jo = bd_joff[b]
-            lin = 0.0
-            ang = 0.0
-            for i in range(3):
-                aw = 0.0
-                av = 0.0
-                for j in range(k):
-                    aw += JB[jo + i * k + j] * VF[off + j]
-                    av += JB[jo + (3 + i) * k + j] * VF[off + j]
-                ang += aw * aw
-                lin += av * av
-            lin, ang = math.sqrt(lin), math.sqrt(ang)
+            twist(JB, bd_joff[b], k, VF, off, w, vo)
+            lin = math.sqrt(vo[0] * vo[0] + vo[1] * vo[1] + vo[2] * vo[2])
+            ang = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
         margins[o] += 0.5 * h * (lin + ang * ob_reach[o])
 
 

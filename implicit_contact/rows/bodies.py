@@ -70,6 +70,21 @@ def i_plus_k(phi, th2, a, b, out):
 
 
 @kernel
+def twist(jac, off, k, v, col, w, vo):
+    """An articulated body's angular velocity w = A_w v and origin velocity vo = A_v v, from its
+    6 x k Jacobian [A_w; A_v] (row-major at jac[off:]) and the skeleton's velocities v[col:col+k]."""
+    for i in range(3):
+        aw = 0.0
+        av = 0.0
+        for j in range(k):
+            x = v[col + j]
+            aw += jac[off + i * k + j] * x
+            av += jac[off + (3 + i) * k + j] * x
+        w[i] = aw
+        vo[i] = av
+
+
+@kernel
 def body_states(body_i, body_f, body_jac, z, R, p, w, vo, T):
     """Every body's pose at l+1, angular and origin velocity and twist rows T (see the module
     docstring) at the unknowns z."""
@@ -110,15 +125,7 @@ def body_states(body_i, body_f, body_jac, z, R, p, w, vo, T):
             T[b, 10, 1] = 1.0
         else:
             off = body_i[b, B_JAC]     # [A_w; A_v], 6 x k, row-major
-            for i in range(3):
-                aw = 0.0
-                av = 0.0
-                for j in range(k):
-                    x = z[col + j]
-                    aw += body_jac[off + i * k + j] * x
-                    av += body_jac[off + (3 + i) * k + j] * x
-                w[b, i] = aw
-                vo[b, i] = av
+            twist(body_jac, off, k, z, col, w[b], vo[b])
             for i in range(3):
                 phi[i] = h * w[b, i]
             th2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2]
