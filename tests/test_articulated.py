@@ -218,6 +218,70 @@ def test_urdf_arm_pushes_ball_like_dart_native():
     np.testing.assert_allclose(q_imp, q_nat, atol=0.05)
 
 
+# -- massless links (a URDF's ee_link / tool0) ----------------------------------------------------
+TIP_URDF = """<?xml version="1.0"?>
+<robot name="tipped">
+  <link name="base">
+    <inertial><mass value="1.0"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial>
+  </link>
+  <joint name="hinge" type="continuous">
+    <parent link="base"/><child link="arm"/><origin xyz="0 0 0.2"/><axis xyz="0 1 0"/>
+  </joint>
+  <link name="arm">
+    <inertial><origin xyz="0.25 0 0"/><mass value="1.0"/>
+      <inertia ixx="1e-4" ixy="0" ixz="0" iyy="0.0209" iyz="0" izz="0.0209"/></inertial>
+  </link>
+  <joint name="ee_fixed" type="fixed"><parent link="arm"/><child link="ee_link"/><origin xyz="0.5 0 0"/></joint>
+  <link name="ee_link">
+    <inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>
+    <collision><geometry><sphere radius="0.02"/></geometry></collision>
+  </link>
+  <joint name="tool_fixed" type="fixed"><parent link="ee_link"/><child link="tool0"/><origin xyz="0.01 0 0"/></joint>
+  <link name="tool0">
+    <inertial><mass value="0"/><inertia ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"/></inertial>
+  </link>
+</robot>
+"""
+REST_FORCE_RTOL = 1e-6
+
+
+def test_massless_welded_tip_rests_with_the_static_normal_force():
+    """A hinged rod (1 kg, centre of mass at half its 0.5 m length) whose only contact shape is a
+    sphere on a massless link welded to its end (as a UR5's ee_link, which DART steps), with a
+    massless tool0 beyond it: dropped from horizontal onto a frictionless ground, it rests on the
+    tip with the normal force of the statics, N = m g x_com / x_tip = m g / 2 at any angle.
+    (Before: the massless link's impulse unit was 0 and the warm start 0/0, a NaN start.)"""
+    h, g = 2e-3, 9.81
+    world = dart.simulation.World()
+    world.setTimeStep(h)
+    world.setGravity([0.0, 0.0, -g])
+    loader = dart.utils.DartLoader()
+    opts = dart.utils.DartLoader.Options()
+    opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
+    loader.setOptions(opts)
+    rod = loader.parseSkeletonString(TIP_URDF, "")
+    assert rod.getBodyNode("ee_link").getMass() == 0.0 and rod.getBodyNode("tool0").getMass() == 0.0
+    world.addSkeleton(rod)
+    ground = dart.dynamics.Skeleton("ground")
+    _, gb = ground.createWeldJointAndBodyNodePair()
+    gn = gb.createShapeNode(dart.dynamics.BoxShape([4.0, 4.0, 0.1]))
+    T = np.eye(4)
+    T[2, 3] = -0.05
+    gn.setRelativeTransform(_iso(T))
+    gn.createCollisionAspect()
+    world.addSkeleton(ground)
+    stepper = ic.ImplicitContactStepper(world)
+    stepper.set_pair_friction(rod.getBodyNode("ee_link"), gb, Friction(mu=0.0))
+    for _ in range(int(round(0.6 / h))):
+        report = stepper.step()
+    (tip,) = [c for c in report.contacts if "ee_link" in c.name_a + c.name_b]
+    sin_rest = (0.2 - 0.02) / 0.5                      # the sphere's centre 0.02 above the ground
+    assert math.asin(sin_rest) == pytest.approx(float(rod.getPositions()[0]), abs=1e-6)
+    assert abs(float(rod.getVelocities()[0])) < 1e-9
+    assert tip.p_n / h == pytest.approx(1.0 * g / 2, rel=REST_FORCE_RTOL)
+    assert tip.gap > -1e-9
+
+
 # -- refusals -----------------------------------------------------------------------------------
 def test_enforced_joint_limits_are_refused():
     world, skel, _, _ = _pendulum_world(1e-3)
