@@ -19,9 +19,10 @@ position integration (`integratePositions`), world time. What this module adds:
   Planar, Free and Weld joints. An ARTICULATED body carries DART's world Jacobian of its origin at
   l; all bodies of a skeleton share its velocity unknowns (formulation.BodyKinematics). Refused at
   construction, with a sentence each: joints whose position limits are enforced (the implicit
-  stepper has no limit constraints), joints with Coulomb friction, actuators other than FORCE /
-  PASSIVE (servo, velocity, acceleration, locked and mimic joints are DART constraints), and
-  meshes. Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
+  stepper has no limit constraints), actuators other than FORCE / PASSIVE (servo, velocity,
+  acceleration, locked and mimic joints are DART constraints), and meshes. Coulomb joint friction
+  (joint.setCoulombFriction) is read when the stepper is built and becomes joint rows of the
+  step's MCP (rows/dynamics.py). Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
   default).
 * Generalized force at l: tau (commands, already clamped by DART to the force limits) + tau_ext -
   (Coriolis + gravity), and joint springs and dampers as DART applies them: DART treats them
@@ -215,6 +216,7 @@ class SkeletonRecord:
     body_index: int            # the BodyRecord of its first body with shapes, or -1 if none
     body_indices: list = field(default_factory=list)   # all its mobile bodies with shapes
     spring_damper: tuple | None = None   # per dof (K, D, q_rest), read when the stepper is built
+    coulomb: np.ndarray | None = None    # per dof Coulomb joint friction [N, N m], read then too
 
 
 @dataclass
@@ -273,10 +275,10 @@ def _check_joints(skel) -> None:
                                  "FORCE and PASSIVE joints (DART enforces servo, velocity, "
                                  "acceleration, locked and mimic joints as constraints); command "
                                  "joint forces instead.")
-            if joint.getCoulombFriction(i) != 0.0:
-                raise ValueError(f"{where} has Coulomb joint friction {joint.getCoulombFriction(i)} on "
-                                 f"dof {i}: DART enforces it as a constraint, which the implicit "
-                                 "stepper does not have; set it to 0 (damping is supported).")
+            friction = joint.getCoulombFriction(i)
+            if not (math.isfinite(friction) and friction >= 0.0):
+                raise ValueError(f"{where} has Coulomb joint friction {friction} on dof {i}: it must be a "
+                                 "finite force >= 0.")
 
 
 def _actuator_per_dof(joint) -> bool:
@@ -297,7 +299,7 @@ def scan_world(world) -> Scene:
         if sk_kind != FIXED:
             sk_index = len(skeletons)
             skeletons.append(SkeletonRecord(skel, sk_kind, skel.getNumDofs(), -1,
-                                            spring_damper=_spring_damper(skel)))
+                                            spring_damper=_spring_damper(skel), coulomb=_coulomb(skel)))
             if sk_kind == ARTICULATED:
                 _check_mass_matrix(skel)
         for b in range(skel.getNumBodyNodes()):
@@ -458,6 +460,13 @@ def _spring_damper(skel):
     if not (k.any() or d.any()):
         return None
     return k, d, q0
+
+
+def _coulomb(skel):
+    """Per dof Coulomb joint friction force (joint.getCoulombFriction), or None if all are zero."""
+    f = np.array([skel.getJoint(j).getCoulombFriction(i) for j in range(skel.getNumJoints())
+                  for i in range(skel.getJoint(j).getNumDofs())], float)
+    return f if f.any() else None
 
 
 def read_raw(rec: SkeletonRecord, q_out, v_out, tau_out, fext_out, dv_out=None) -> None:

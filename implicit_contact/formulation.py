@@ -39,7 +39,7 @@ from . import bundles
 
 # the layout's names are formulation's too (callers build a step with fm.PairSpec, fm.build_layout, ...)
 from .layout import (ARTICULATED, FIXED, FREE, PLANAR, ContactObject, Layout, PairSlots, PairSpec,  # noqa: F401
-                     PairState, SkeletonBlock, _as_slice, _least_aligned_axis, _position_rows,
+                     JointRows, PairState, SkeletonBlock, _as_slice, _least_aligned_axis, _position_rows,
                      _reduced_point, _tangent_basis, build_layout)
 from .rows import bodies as rb
 from .rows import contact as rc
@@ -215,7 +215,7 @@ class StepProblem:
             raise ValueError("the layout's support blocks and the problem's supports differ")
         self.layout = layout
         self.lower, self.upper = layout.lower, layout.upper
-        self.tables = self._build_structure(bodies, specs, tuple(supports), len(skeletons))
+        self.tables = self._build_structure(bodies, specs, tuple(supports), skeletons)
         self._pattern = None
         self._rep = np.zeros((len(specs), rc.NREP))
         t = self.tables
@@ -226,7 +226,7 @@ class StepProblem:
         self.refresh(h, skeletons, bodies, specs, supports, source)
 
     # -- the tables ---------------------------------------------------------------------------
-    def _build_structure(self, bodies, specs, supports, n_skeletons) -> _Tables:
+    def _build_structure(self, bodies, specs, supports, skeletons) -> _Tables:
         """The tables' parts fixed by the layout: kinds, columns, functions, local indices."""
         layout = self.layout
         n = layout.n
@@ -273,12 +273,16 @@ class StepProblem:
                          rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
                          rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof]
         fpar = np.array([r for group in rows for r in group]) if rows else np.zeros((1, 25))
-        sk_i = np.zeros((n_skeletons, rd.NKI), np.int64)
+        sk_i = np.zeros((len(skeletons), rd.NKI), np.int64)
         off = 0
         for s, vidx in enumerate(layout.v_index):
             k = len(vidx)
-            sk_i[s] = [int(vidx[0]) if k else 0, k, off]
-            off += k * k
+            jidx = layout.joint_index[s]
+            nj = len(jidx)
+            if nj != (0 if skeletons[s].joints is None else len(skeletons[s].joints.c)):
+                raise ValueError("the layout's joint rows and the skeleton's differ")
+            sk_i[s] = [int(vidx[0]) if k else 0, k, off, int(jidx[0]) if nj else 0, nj]
+            off += rd.table_size(k, nj)
         sup_i = np.zeros((len(supports), rs.NSI), np.int64)
         sup_body = np.zeros(len(supports), np.int64)
         sup_c, sup_er, sup_mun = np.zeros((len(supports), 2)), np.zeros(len(supports)), np.zeros(len(supports))
@@ -292,7 +296,8 @@ class StepProblem:
             sup_mun[s] = sp.friction.mu * sp.friction.normal_force
         self._pos_rows = np.asarray(_position_rows(layout), np.int64)
         # plans' local indices: skeletons, pairs, supports
-        locs = [np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]) for s in range(len(sk_i))]
+        locs = [np.r_[np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]), layout.joint_index[s]].astype(np.int64)
+                for s in range(len(sk_i))]
         for k, spec in enumerate(specs):
             parts = [bodies[o.body].vindex for o in (spec.obj1, spec.obj2) if bodies[o.body].vindex is not None]
             parts.append(np.arange(pair_i[k, rc.P_C0], pair_i[k, rc.P_C0] + pair_i[k, rc.P_NBLK]))
@@ -327,6 +332,12 @@ class StepProblem:
             source = _source_of(bodies, skeletons)
         rt.fill_state(*source, h, t.body_dim, t.body_i, t.body_f, t.body_jac, t.sk_i, t.sk_M, t.v0, t.hforce,
                       t.scale, self._pos_rows, t.sup_body, t.sup_c, t.sup_er, t.sup_mun, t.sup_f)
+        for s, block in enumerate(skeletons):
+            if block.joints is not None:
+                k, off = int(t.sk_i[s, rd.K_NV]), int(t.sk_i[s, rd.K_MOFF])
+                jr = block.joints
+                table = t.sk_M[off + k * k:off + rd.table_size(k, len(jr.c))].reshape(len(jr.c), k + 2)
+                table[:, :k], table[:, k], table[:, k + 1] = jr.G, jr.c, jr.unit
         self._reduced = []
         for k, spec in enumerate(specs):
             r1 = _reduced_point(spec.obj1, bodies[spec.obj1.body]) if spec.obj1.fixed_halfspace else None

@@ -89,6 +89,7 @@ class Layout:
     lower: np.ndarray
     upper: np.ndarray
     supports: tuple = ()       # support.SupportSlots per support block (after all pairs)
+    joint_index: list = None   # per skeleton: columns of its joint rows (after the supports)
 
 
 def _position_rows(layout: Layout):
@@ -148,9 +149,10 @@ def _tangent_basis(n, e):
     return np.array([n, t, np.cross(n, t)])
 
 
-def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = ()) -> Layout:
+def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = (), joint_bounds: tuple = ()) -> Layout:
     """Allocate z: velocities first, then each pair's unknowns, then the support blocks'
-    (support.SupportSpec); rows follow the same order."""
+    (support.SupportSpec), then per skeleton its joint rows (joint_bounds: per skeleton, None or
+    the (lower, upper) arrays of its rows' unknowns, rows/dynamics.py); rows follow the same order."""
     lower, upper = [], []
     col = 0
     v_index = []
@@ -218,7 +220,16 @@ def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = ()) -> La
         slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
                                p_n, rows_fric, dbar, dn, p_nr))
     support_slots, col = allocate_supports(col, supports, lower, upper)
-    return Layout(col, v_index, slots, np.array(lower), np.array(upper), tuple(support_slots))
+    joint_index = []
+    for s in range(len(nv_per_skeleton)):
+        bounds = joint_bounds[s] if s < len(joint_bounds) else None
+        nj = 0 if bounds is None else len(bounds[0])
+        joint_index.append(np.arange(col, col + nj))
+        if nj:
+            lower += [float(x) for x in bounds[0]]
+            upper += [float(x) for x in bounds[1]]
+            col += nj
+    return Layout(col, v_index, slots, np.array(lower), np.array(upper), tuple(support_slots), joint_index)
 
 
 @dataclass
@@ -228,6 +239,19 @@ class SkeletonBlock:
     v: np.ndarray
     force: np.ndarray
     body: int                  # its contact body in StepProblem.bodies
+    joints: "JointRows | None" = None
+
+
+@dataclass
+class JointRows:
+    """A skeleton's joint rows at l (rows/dynamics.py): F_r = G[r] . v+ + c[r] complementary to
+    lower[r] <= lambda_r <= upper[r]; unit[r] lambda_r is the generalized impulse along G[r]."""
+    G: np.ndarray              # (n_j, k)
+    c: np.ndarray              # (n_j,)
+    unit: np.ndarray           # (n_j,)
+    lower: np.ndarray          # (n_j,)
+    upper: np.ndarray          # (n_j,)
+    dofs: tuple = ()           # the dof each row acts on, for reports
 
 
 @dataclass

@@ -302,6 +302,8 @@ def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
         z[b] = x[a]
     for so, sn in zip(old.layout.supports, new.layout.supports):
         z[sn.rows] = x[so.rows]
+    for a, b in zip(old.layout.joint_index, new.layout.joint_index):
+        z[b] = x[a]
     for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
         if k in skip:
             continue

@@ -187,6 +187,11 @@ class ImplicitContactStepper:
         self._supports = {}        # body index -> SupportFriction (set_support_friction)
         self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
+        # skeletons with Coulomb joint friction (read at construction, as DART's springs): their
+        # friction rows (rows/dynamics.py) put them in every step's MCP; the last step's impulses
+        self._frictional = {s: rec.coulomb for s, rec in enumerate(self.scene.skeletons)
+                            if rec.coulomb is not None}
+        self._last_joint = {}      # skeleton index -> (lambda of its friction rows, h), last step
         self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
         self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
         self._left_out = False     # this step left a far pair out
@@ -237,6 +242,20 @@ class ImplicitContactStepper:
         else:
             self._supports[b] = support
 
+    def joint_friction_impulse(self, skeleton) -> np.ndarray:
+        """The Coulomb joint friction impulse on each dof of a skeleton in the last step [N s or
+        N m s] (u lambda of its friction rows, rows/dynamics.py; zeros where a dof has no friction
+        or the skeleton did not step through an MCP)."""
+        for s, rec in enumerate(self.scene.skeletons):
+            if rec.skeleton is skeleton or rec.skeleton.getName() == skeleton.getName():
+                out = np.zeros(rec.ndof)
+                f, last = self._frictional.get(s), self._last_joint.get(s)
+                if f is not None and last is not None:
+                    dofs = np.flatnonzero(f)
+                    out[dofs] = last[1] * f[dofs] * last[0]
+                return out
+        raise ValueError(f"skeleton '{skeleton.getName()}' is not stepped by this stepper")
+
     def support_wrench(self, node) -> np.ndarray:
         """The support's friction impulse on a body in the last step, (p_x, p_y, moment about
         the body origin) [N s, N m s]; zeros if it has no support friction or did not step."""
@@ -265,7 +284,7 @@ class ImplicitContactStepper:
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
         snap = self._begin()
-        saved = (self._last, dict(self._last_support), dict(self._far), self._ctx)
+        saved = (self._last, dict(self._last_support), dict(self._far), self._ctx, self._last_joint)
 
         def attempt(n):
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
@@ -276,7 +295,7 @@ class ImplicitContactStepper:
                 adapter.restore(self.world, snap)
                 self._world.raw_valid = False
                 self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
-                self._ctx = saved[3]
+                self._ctx, self._last_joint = saved[3], saved[4]
             return report
 
         self._retrying = False
@@ -409,7 +428,7 @@ class ImplicitContactStepper:
         ordered = sorted(candidates)
         pairs, far = self._far_pairs(ordered, state.v_free, h, keep)
         self._ctx = None
-        if not pairs and not self._supports:
+        if not pairs and not self._supports and not self._frictional:
             report = self._free_step(state, far, keep, t0)
             if report.success and not keep:
                 self._ctx = self._context(h, ordered, pairs, None, None)
@@ -437,6 +456,8 @@ class ImplicitContactStepper:
         self._last_support = {sp.key: (result.x[ss.y].copy(), float(result.x[ss.sigma]),
                                        problem.support_wrench(result.x, s))
                               for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
+        self._last_joint = {s: (result.x[problem.layout.joint_index[k]].copy(), h)
+                            for k, s in enumerate(att.involved) if s in self._frictional}
         if not keep:
             self._ctx = self._context(h, ordered, pairs, problem, att)
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
@@ -475,7 +496,8 @@ class ImplicitContactStepper:
         takes the step from the start."""
         ctx = self._ctx
         w = self._world
-        if ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons() or w.moving_unbounded:
+        if (ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons() or w.moving_unbounded
+                or self._frictional):
             return None
         if ctx.problem is None:
             return self._repeat_free_flight(ctx, h, t0)
@@ -697,9 +719,11 @@ class ImplicitContactStepper:
         """The pairs' specs and the step's bodies and skeletons, as the solve loop's state."""
         scene = self.scene
         supported = sorted(self._supports)
-        # skeletons that take part in the MCP (every body with support friction does)
+        # skeletons that take part in the MCP (every body with support friction does, and every
+        # skeleton with joint friction)
         involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p}
-                          .union(scene.bodies[b].skeleton_index for b in supported) - {-1})
+                          .union(scene.bodies[b].skeleton_index for b in supported)
+                          .union(self._frictional) - {-1})
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
@@ -883,6 +907,18 @@ class ImplicitContactStepper:
             return ncp.McpResult(np.asarray(z0, float).copy(), np.full(len(z0), np.nan), ncp.Status.NOT_FINITE,
                                  0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
 
+    def _friction_rows(self, s, h):
+        """Skeleton s's Coulomb joint friction as joint rows (rows/dynamics.py): per dof with
+        friction f, g = e_j, c = 0, unit h f, lambda in [-1, 1]; None without friction."""
+        f = self._frictional.get(s)
+        if f is None:
+            return None
+        dofs = np.flatnonzero(f)
+        G = np.zeros((len(dofs), len(f)))
+        G[np.arange(len(dofs)), dofs] = 1.0
+        return fm.JointRows(G, np.zeros(len(dofs)), h * f[dofs], np.full(len(dofs), -1.0), np.ones(len(dofs)),
+                            tuple(int(j) for j in dofs))
+
     def _problem(self, state, att):
         """The step problem of the attempt's specs: kept by layout signature, bodies and h, with
         its bodies' kinematics and skeleton blocks (views of the world buffers), and refreshed
@@ -895,13 +931,16 @@ class ImplicitContactStepper:
                                        sp.obj1.fixed_halfspace, sp.obj2.fixed_halfspace,
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
                                       for sp in specs),
-                     tuple((sp.body, sp.friction.torsion) for sp in supports))
+                     tuple((sp.body, sp.friction.torsion) for sp in supports),
+                     tuple(s for s in involved if s in self._frictional))
         key = (signature, tuple(body_ids), h)
         cached = self._problems.get(key)
         if cached is None:
             if len(self._problems) > 256:       # scenes whose pairs keep changing
                 self._problems.clear()
-            layout = fm.build_layout(nv, specs, supports)
+            joints = [self._friction_rows(s, h) for s in involved]
+            layout = fm.build_layout(nv, specs, supports,
+                                     tuple(None if jr is None else (jr.lower, jr.upper) for jr in joints))
             midpoint = bool(self._trapezoidal_skeletons())
             R_src, p_src, th_src = (w.R_half, w.p_half, w.th_half) if midpoint else (w.R_now, w.p_now, w.th_now)
             kins = []
@@ -918,8 +957,9 @@ class ImplicitContactStepper:
                 kins.append(fm.BodyKinematics(rec.kind, rec.dim, R_src[b], p_src[b], q0, hk, vindex,
                                               self._masses[b], J))
             blocks = [fm.SkeletonBlock(state.states[s].M, state.states[s].v, state.states[s].force,
-                                       next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1))
-                      for s in involved]
+                                       next((body_pos[b] for b in scene.skeletons[s].body_indices if b in body_pos), -1),
+                                       jr)
+                      for s, jr in zip(involved, joints)]
             ids = np.asarray(body_ids, np.int64)
             source = (ids, R_src, p_src, th_src, w.JB, w.bd_joff[ids],
                       np.array([kin.h for kin in kins]), np.asarray(involved, np.int64), w.sk_voff, w.sk_moff,
@@ -1036,6 +1076,10 @@ class ImplicitContactStepper:
             last = self._last_support.get(sp.key)
             if last is not None and not att.cold and len(last[0]) == ss.y.stop - ss.y.start:
                 z[ss.y], z[ss.sigma] = last[0], last[1]
+        for k, s in enumerate(att.involved):
+            last = self._last_joint.get(s)
+            if last is not None and not att.cold and len(last[0]) == len(lay.joint_index[k]):
+                z[lay.joint_index[k]] = last[0]
         return z
 
     def _seed_pair(self, problem, spec, state):

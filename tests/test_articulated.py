@@ -291,10 +291,7 @@ def test_enforced_joint_limits_are_refused():
 
 
 def test_constraint_joints_are_refused():
-    world, skel, _, _ = _pendulum_world(1e-3)
-    skel.getJoint(0).setCoulombFriction(0, 0.1)
-    with pytest.raises(ValueError, match="Coulomb"):
-        ic.ImplicitContactStepper(world)
+    # (Coulomb joint friction is supported since issue 15: tests/test_joint_friction.py)
     world, skel, _, _ = _pendulum_world(1e-3)
     skel.getJoint(0).setActuatorType(dart.dynamics.ActuatorType.SERVO)
     with pytest.raises(ValueError, match="SERVO"):
