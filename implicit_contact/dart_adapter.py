@@ -18,11 +18,11 @@ position integration (`integratePositions`), world time. What this module adds:
   with Revolute, Prismatic, Screw, Universal, Ball, Euler, Translational, TranslationalJoint2D,
   Planar, Free and Weld joints. An ARTICULATED body carries DART's world Jacobian of its origin at
   l; all bodies of a skeleton share its velocity unknowns (formulation.BodyKinematics). Refused at
-  construction, with a sentence each: joints whose position limits are enforced (the implicit
-  stepper has no limit constraints), actuators other than FORCE / PASSIVE (servo, velocity,
+  construction, with a sentence each: enforced position limits on Ball and Free joints (their
+  rotation is not q + h v), actuators other than FORCE / PASSIVE (servo, velocity,
   acceleration, locked and mimic joints are DART constraints), and meshes. Coulomb joint friction
-  (joint.setCoulombFriction) is read when the stepper is built and becomes joint rows of the
-  step's MCP (rows/dynamics.py). Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
+  (joint.setCoulombFriction) and enforced position limits (joint.setLimitEnforcement) are read
+  when the stepper is built and become joint rows of the step's MCP (joint_rows.py). Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
   default).
 * Generalized force at l: tau (commands, already clamped by DART to the force limits) + tau_ext -
   (Coriolis + gravity), and joint springs and dampers as DART applies them: DART treats them
@@ -217,6 +217,7 @@ class SkeletonRecord:
     body_indices: list = field(default_factory=list)   # all its mobile bodies with shapes
     spring_damper: tuple | None = None   # per dof (K, D, q_rest), read when the stepper is built
     coulomb: np.ndarray | None = None    # per dof Coulomb joint friction [N, N m], read then too
+    limits: tuple | None = None          # (dofs, lower, upper) of enforced position limits, read then
 
 
 @dataclass
@@ -249,6 +250,7 @@ def _joint_kind(skel) -> str:
 
 
 _PLAIN_ACTUATORS = ("FORCE", "PASSIVE")
+_EXP_MAP_JOINTS = ("BallJoint", "FreeJoint")    # their rotation integrates on SO(3)
 
 
 def _check_joints(skel) -> None:
@@ -264,10 +266,11 @@ def _check_joints(skel) -> None:
         n = joint.getNumDofs()
         if n == 0:
             continue
-        if joint.areLimitsEnforced():
-            raise ValueError(f"{where} enforces position limits: joint limits are not handled by the "
-                             "implicit stepper; disable them (joint.setLimitEnforcement(False)) or "
-                             "model the stop as a contact shape.")
+        if joint.areLimitsEnforced() and jtype in _EXP_MAP_JOINTS:
+            raise ValueError(f"{where} enforces position limits: the implicit stepper holds limits on "
+                             "coordinates that integrate as q + h v, which a " + jtype + "'s rotation does "
+                             "not; disable them (joint.setLimitEnforcement(False)) or model the stop "
+                             "as a contact shape.")
         for i in range(n):
             act = joint.getActuatorType(i) if _actuator_per_dof(joint) else joint.getActuatorType()
             if act.name not in _PLAIN_ACTUATORS:
@@ -299,7 +302,8 @@ def scan_world(world) -> Scene:
         if sk_kind != FIXED:
             sk_index = len(skeletons)
             skeletons.append(SkeletonRecord(skel, sk_kind, skel.getNumDofs(), -1,
-                                            spring_damper=_spring_damper(skel), coulomb=_coulomb(skel)))
+                                            spring_damper=_spring_damper(skel), coulomb=_coulomb(skel),
+                                            limits=_limits(skel)))
             if sk_kind == ARTICULATED:
                 _check_mass_matrix(skel)
         for b in range(skel.getNumBodyNodes()):
@@ -467,6 +471,35 @@ def _coulomb(skel):
     f = np.array([skel.getJoint(j).getCoulombFriction(i) for j in range(skel.getNumJoints())
                   for i in range(skel.getJoint(j).getNumDofs())], float)
     return f if f.any() else None
+
+
+def _limits(skel, tol=1e-9):
+    """(dofs, lower, upper) of the dofs whose joints enforce position limits with a finite side,
+    or None; refuses a skeleton that starts outside them."""
+    dofs, lo, hi = [], [], []
+    at = 0
+    for j in range(skel.getNumJoints()):
+        joint = skel.getJoint(j)
+        n = joint.getNumDofs()
+        if n and joint.areLimitsEnforced():
+            for i in range(n):
+                a, b = joint.getPositionLowerLimit(i), joint.getPositionUpperLimit(i)
+                if not (a <= b) or math.isnan(a) or math.isnan(b):
+                    raise ValueError(f"joint '{joint.getName()}' of skeleton '{skel.getName()}' has position "
+                                     f"limits [{a}, {b}] on dof {i}: lower must be <= upper.")
+                if math.isfinite(a) or math.isfinite(b):
+                    q = joint.getPosition(i)
+                    if not (a - tol <= q <= b + tol):
+                        raise ValueError(f"joint '{joint.getName()}' of skeleton '{skel.getName()}' starts at "
+                                         f"{q} on dof {i}, outside its enforced limits [{a}, {b}]; move it "
+                                         "inside them.")
+                    dofs.append(at + i)
+                    lo.append(a)
+                    hi.append(b)
+        at += n
+    if not dofs:
+        return None
+    return np.array(dofs, np.int64), np.array(lo, float), np.array(hi, float)
 
 
 def read_raw(rec: SkeletonRecord, q_out, v_out, tau_out, fext_out, dv_out=None) -> None:

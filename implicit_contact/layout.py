@@ -251,7 +251,7 @@ class JointRows:
     unit: np.ndarray           # (n_j,)
     lower: np.ndarray          # (n_j,)
     upper: np.ndarray          # (n_j,)
-    dofs: tuple = ()           # the dof each row acts on, for reports
+    keys: tuple = ()           # what each row is, e.g. ("friction", dof) (joint_rows.py)
 
 
 @dataclass

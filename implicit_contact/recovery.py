@@ -73,6 +73,7 @@ class Attempt:
     flipped_once: set = field(default_factory=set)
     index: int = 0                                 # solves so far
     z0: np.ndarray | None = None
+    joints: list = field(default_factory=list)     # per involved skeleton its JointRows or None
 
 
 def friction_rows(stepper, att: Attempt, problem, result):

@@ -52,6 +52,7 @@ from .params import Compliance, Friction
 from .rows import checks as rk
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
+from . import joint_rows
 
 # ---------------------------------------------------------------------------------------------
 # options and reports
@@ -187,11 +188,17 @@ class ImplicitContactStepper:
         self._supports = {}        # body index -> SupportFriction (set_support_friction)
         self._orientation = {}     # two intersections: frozenset of object keys -> body 1's key
         self._last_support = {}    # body index -> (y, sigma, wrench) of the last step
-        # skeletons with Coulomb joint friction (read at construction, as DART's springs): their
-        # friction rows (rows/dynamics.py) put them in every step's MCP; the last step's impulses
-        self._frictional = {s: rec.coulomb for s, rec in enumerate(self.scene.skeletons)
-                            if rec.coulomb is not None}
-        self._last_joint = {}      # skeleton index -> (lambda of its friction rows, h), last step
+        # skeletons with Coulomb joint friction or enforced position limits (read at construction,
+        # as DART's springs): their joint rows (joint_rows.py); friction puts a skeleton in every
+        # step's MCP, a limit when it is near
+        self._joint_models = {}
+        for s, rec in enumerate(self.scene.skeletons):
+            dofs, lo, hi = rec.limits if rec.limits is not None else (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+            model = joint_rows.JointModel(rec.coulomb, dofs, lo, hi)
+            if not model.empty:
+                self._joint_models[s] = model
+        self._forced_limits = {}   # skeleton -> limit rows a solved step crossed (this step only)
+        self._last_joint = {}      # skeleton index -> (row keys, lambda, units), last step
         self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
         self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
         self._left_out = False     # this step left a far pair out
@@ -244,16 +251,22 @@ class ImplicitContactStepper:
 
     def joint_friction_impulse(self, skeleton) -> np.ndarray:
         """The Coulomb joint friction impulse on each dof of a skeleton in the last step [N s or
-        N m s] (u lambda of its friction rows, rows/dynamics.py; zeros where a dof has no friction
-        or the skeleton did not step through an MCP)."""
+        N m s] (joint_rows.py; zeros where a dof has no friction or the skeleton did not step
+        through an MCP)."""
+        return self._joint_impulse(skeleton, (joint_rows.FRICTION,))
+
+    def joint_limit_impulse(self, skeleton) -> np.ndarray:
+        """The impulse of the enforced position limits on each dof of a skeleton in the last step
+        [N s or N m s], signed along +q (joint_rows.py; zeros where no limit row acted)."""
+        return self._joint_impulse(skeleton, (joint_rows.LOWER, joint_rows.UPPER))
+
+    def _joint_impulse(self, skeleton, kinds):
         for s, rec in enumerate(self.scene.skeletons):
             if rec.skeleton is skeleton or rec.skeleton.getName() == skeleton.getName():
-                out = np.zeros(rec.ndof)
-                f, last = self._frictional.get(s), self._last_joint.get(s)
-                if f is not None and last is not None:
-                    dofs = np.flatnonzero(f)
-                    out[dofs] = last[1] * f[dofs] * last[0]
-                return out
+                last = self._last_joint.get(s)
+                if last is None:
+                    return np.zeros(rec.ndof)
+                return joint_rows.impulses(last[0], last[1], last[2], rec.ndof, kinds)
         raise ValueError(f"skeleton '{skeleton.getName()}' is not stepped by this stepper")
 
     def support_wrench(self, node) -> np.ndarray:
@@ -285,6 +298,7 @@ class ImplicitContactStepper:
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
         snap = self._begin()
         saved = (self._last, dict(self._last_support), dict(self._far), self._ctx, self._last_joint)
+        self._forced_limits = {}
 
         def attempt(n):
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
@@ -296,6 +310,7 @@ class ImplicitContactStepper:
                 self._world.raw_valid = False
                 self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
                 self._ctx, self._last_joint = saved[3], saved[4]
+                self._forced_limits = {}
             return report
 
         self._retrying = False
@@ -428,12 +443,13 @@ class ImplicitContactStepper:
         ordered = sorted(candidates)
         pairs, far = self._far_pairs(ordered, state.v_free, h, keep)
         self._ctx = None
-        if not pairs and not self._supports and not self._frictional:
+        joints = self._joint_rows(state)
+        if not pairs and not self._supports and not joints:
             report = self._free_step(state, far, keep, t0)
             if report.success and not keep:
                 self._ctx = self._context(h, ordered, pairs, None, None)
             return report
-        att = self._specs(pairs, state)
+        att = self._specs(pairs, state, joints)
         problem, result = self._solve_step(att, state)
         if not result.success:
             return self._failure(problem, result, att.specs, t0, h)
@@ -450,14 +466,17 @@ class ImplicitContactStepper:
         if violated:
             # a pair left out could touch at the solved velocities: solve the step again with it
             return self._one_step(h, keep | violated)
+        if self._limits_crossed(state, joints, v_solved):
+            # a limit whose row was left out is crossed at the solved velocities: again with it
+            return self._one_step(h, keep)
         self._commit(state, v_solved)
         self._last = new_last
         self._far = far_next
         self._last_support = {sp.key: (result.x[ss.y].copy(), float(result.x[ss.sigma]),
                                        problem.support_wrench(result.x, s))
                               for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
-        self._last_joint = {s: (result.x[problem.layout.joint_index[k]].copy(), h)
-                            for k, s in enumerate(att.involved) if s in self._frictional}
+        self._last_joint = {s: (joints[s].keys, result.x[problem.layout.joint_index[k]].copy(), joints[s].unit.copy())
+                            for k, s in enumerate(att.involved) if s in joints}
         if not keep:
             self._ctx = self._context(h, ordered, pairs, problem, att)
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
@@ -497,7 +516,7 @@ class ImplicitContactStepper:
         ctx = self._ctx
         w = self._world
         if (ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons() or w.moving_unbounded
-                or self._frictional):
+                or self._joint_models):
             return None
         if ctx.problem is None:
             return self._repeat_free_flight(ctx, h, t0)
@@ -715,21 +734,56 @@ class ImplicitContactStepper:
         self._far = far_next
         return StepReport(True, 0, 0.0, "NO_CONTACT", (), t0 + state.h, 1, "no pair near", 0)
 
-    def _specs(self, pairs, state) -> recovery.Attempt:
+    def _joint_rows(self, state) -> dict:
+        """skeleton -> its joint rows for this step (joint_rows.py): friction rows, and the rows
+        of the limits it is near or crossed in a solve of this step."""
+        out = {}
+        if not self._joint_models:
+            return out
+        w = self._world
+        tol = self.options.contact_tolerance
+        for s, model in self._joint_models.items():
+            o, k = w.sk_voff[s], w.sk_nv[s]
+            q, st = w.Q[o:o + k], state.states[s]
+            keys = joint_rows.near(model, q, st.v, state.v_free[s], state.h, tol) | self._forced_limits.get(s, set())
+            rows = joint_rows.build(model, keys, q, st.M, state.h, self._gravity_norm)
+            if rows is not None:
+                out[s] = rows
+        return out
+
+    def _limits_crossed(self, state, joints, v_solved) -> bool:
+        """Whether the solved step crosses a limit whose row it left out (those rows are then
+        forced for the rest of this step)."""
+        w = self._world
+        found = False
+        for s, model in self._joint_models.items():
+            if len(model.limited) == 0:
+                continue
+            o, k = w.sk_voff[s], w.sk_nv[s]
+            present = set(joints[s].keys) if s in joints else set()
+            new = joint_rows.crossed(model, w.Q[o:o + k], v_solved[s], state.h, self.options.contact_tolerance, present)
+            if new:
+                self._forced_limits[s] = self._forced_limits.get(s, set()) | new
+                found = True
+        return found
+
+    def _specs(self, pairs, state, joints=None) -> recovery.Attempt:
         """The pairs' specs and the step's bodies and skeletons, as the solve loop's state."""
         scene = self.scene
         supported = sorted(self._supports)
         # skeletons that take part in the MCP (every body with support friction does, and every
         # skeleton with joint friction)
+        joints = joints or {}
         involved = sorted({scene.bodies[self._objects[i].body].skeleton_index for p in pairs for i in p}
                           .union(scene.bodies[b].skeleton_index for b in supported)
-                          .union(self._frictional) - {-1})
+                          .union(joints) - {-1})
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
         att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, self.options.solver.tol, state.h,
                                body_pos, state.states)
         att.involved, att.body_ids = involved, body_ids
+        att.joints = [joints.get(s) for s in involved]
         att.sk_pos = {s: k for k, s in enumerate(involved)}
         att.supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
         att.nv = [scene.skeletons[s].ndof for s in involved]
@@ -907,18 +961,6 @@ class ImplicitContactStepper:
             return ncp.McpResult(np.asarray(z0, float).copy(), np.full(len(z0), np.nan), ncp.Status.NOT_FINITE,
                                  0, math.inf, (), f"rows undefined at an iterate: {exc!r}", "", 0, 0)
 
-    def _friction_rows(self, s, h):
-        """Skeleton s's Coulomb joint friction as joint rows (rows/dynamics.py): per dof with
-        friction f, g = e_j, c = 0, unit h f, lambda in [-1, 1]; None without friction."""
-        f = self._frictional.get(s)
-        if f is None:
-            return None
-        dofs = np.flatnonzero(f)
-        G = np.zeros((len(dofs), len(f)))
-        G[np.arange(len(dofs)), dofs] = 1.0
-        return fm.JointRows(G, np.zeros(len(dofs)), h * f[dofs], np.full(len(dofs), -1.0), np.ones(len(dofs)),
-                            tuple(int(j) for j in dofs))
-
     def _problem(self, state, att):
         """The step problem of the attempt's specs: kept by layout signature, bodies and h, with
         its bodies' kinematics and skeleton blocks (views of the world buffers), and refreshed
@@ -932,13 +974,13 @@ class ImplicitContactStepper:
                                        None if sp.compliance is None else math.isfinite(sp.compliance.delta_max))
                                       for sp in specs),
                      tuple((sp.body, sp.friction.torsion) for sp in supports),
-                     tuple(s for s in involved if s in self._frictional))
+                     tuple(None if jr is None else jr.keys for jr in att.joints))
         key = (signature, tuple(body_ids), h)
         cached = self._problems.get(key)
         if cached is None:
             if len(self._problems) > 256:       # scenes whose pairs keep changing
                 self._problems.clear()
-            joints = [self._friction_rows(s, h) for s in involved]
+            joints = att.joints
             layout = fm.build_layout(nv, specs, supports,
                                      tuple(None if jr is None else (jr.lower, jr.upper) for jr in joints))
             midpoint = bool(self._trapezoidal_skeletons())
@@ -968,6 +1010,8 @@ class ImplicitContactStepper:
             cached = self._problems[key] = (problem, kins, blocks, source)
             return problem
         problem, kins, blocks, source = cached
+        for block, jr in zip(blocks, att.joints):   # this step's c and units (joint_rows.build)
+            block.joints = jr
         for kin, b in zip(kins, body_ids):
             if kin.kind == adapter.PLANAR:       # q0 is a copy (the planar angle is not in a buffer row)
                 kin.q0[:] = (source[2][b, 0], source[2][b, 1], source[3][b])
@@ -1078,8 +1122,9 @@ class ImplicitContactStepper:
                 z[ss.y], z[ss.sigma] = last[0], last[1]
         for k, s in enumerate(att.involved):
             last = self._last_joint.get(s)
-            if last is not None and not att.cold and len(last[0]) == len(lay.joint_index[k]):
-                z[lay.joint_index[k]] = last[0]
+            if last is not None and not att.cold and att.joints[k] is not None:
+                carried = dict(zip(last[0], last[1]))
+                z[lay.joint_index[k]] = [carried.get(key, 0.0) for key in att.joints[k].keys]
         return z
 
     def _seed_pair(self, problem, spec, state):

@@ -283,10 +283,23 @@ def test_massless_welded_tip_rests_with_the_static_normal_force():
 
 
 # -- refusals -----------------------------------------------------------------------------------
-def test_enforced_joint_limits_are_refused():
-    world, skel, _, _ = _pendulum_world(1e-3)
-    skel.getJoint(0).setLimitEnforcement(True)
-    with pytest.raises(ValueError, match="joint limits are not handled by the implicit stepper"):
+def test_enforced_joint_limits_outside_or_on_rotations_are_refused():
+    # (enforced limits on q + h v coordinates are supported since issue 15: tests/test_joint_limits.py)
+    world, skel, _, _ = _pendulum_world(1e-3, q0=1.2)
+    joint = skel.getJoint(0)
+    joint.setPositionLowerLimit(0, -0.5)
+    joint.setPositionUpperLimit(0, 0.5)
+    joint.setLimitEnforcement(True)
+    with pytest.raises(ValueError, match="outside its enforced limits"):
+        ic.ImplicitContactStepper(world)
+    world = dart.simulation.World()
+    ball = dart.dynamics.Skeleton("ball_jointed")
+    bj, body = ball.createBallJointAndBodyNodePair()
+    body.setMass(1.0)
+    ic.attach(body, shp.Sphere(0.1, center=[0.0, 0.0, -0.5]))
+    bj.setLimitEnforcement(True)
+    world.addSkeleton(ball)
+    with pytest.raises(ValueError, match="BallJoint's rotation does not"):
         ic.ImplicitContactStepper(world)
 
 

@@ -77,11 +77,12 @@ def test_non_positive_mass_is_refused():
 def test_unsupported_joint_and_mesh_are_refused():
     world = dart.simulation.World()
     skel = dart.dynamics.Skeleton("arm")
-    j0, b0 = skel.createRevoluteJointAndBodyNodePair()
-    j0.setLimitEnforcement(True)     # revolute joints are supported (issue 6); enforced limits are not
+    j0, b0 = skel.createBallJointAndBodyNodePair()
+    j0.setLimitEnforcement(True)     # ball joints are supported (issue 6); limits on their rotation are not
+    b0.setMass(1.0)
     ic.attach(b0, ic.shapes.Sphere(0.1))
     world.addSkeleton(skel)
-    with pytest.raises(ValueError, match="RevoluteJoint"):
+    with pytest.raises(ValueError, match="BallJoint"):
         ic.ImplicitContactStepper(world)
     world = dart.simulation.World()
     skel, body = _free_ball(world)
