@@ -10,8 +10,8 @@ multibody systems with intermittent contact", IJRR 2013.
 """
 from . import shapes
 from .params import Compliance, Friction
-from .dart_adapter import attach
+from .dart_adapter import attach, urdf_mimic_joints
 from .stepper import ImplicitContactStepper, StepperOptions, StepReport, ContactReport, StepFailure
 
-__all__ = ["shapes", "Compliance", "Friction", "attach", "ImplicitContactStepper", "StepperOptions", "StepReport",
+__all__ = ["shapes", "Compliance", "Friction", "attach", "urdf_mimic_joints", "ImplicitContactStepper", "StepperOptions", "StepReport",
            "ContactReport", "StepFailure"]

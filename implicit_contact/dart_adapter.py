@@ -218,6 +218,7 @@ class SkeletonRecord:
     spring_damper: tuple | None = None   # per dof (K, D, q_rest), read when the stepper is built
     coulomb: np.ndarray | None = None    # per dof Coulomb joint friction [N, N m], read then too
     limits: tuple | None = None          # (dofs, lower, upper) of enforced position limits, read then
+    mimic: tuple = ()                    # (follower dof, leader dof, multiplier, offset) per mimic joint
 
 
 @dataclass
@@ -226,12 +227,12 @@ class Scene:
     bodies: list               # bodies with contact shapes (mobile and fixed)
 
 
-def _joint_kind(skel) -> str:
+def _joint_kind(skel, mimic=frozenset()) -> str:
     """FIXED (immobile), FREE / PLANAR (a single body on a Free / XY-Planar root with identity
     offsets: the fast path) or ARTICULATED (everything else; its joints checked by _check_joints)."""
     if skel.getNumDofs() == 0 or not skel.isMobile():
         return FIXED
-    _check_joints(skel)
+    _check_joints(skel, mimic)
     if skel.getNumBodyNodes() != 1:
         return ARTICULATED
     joint = skel.getJoint(0)
@@ -253,9 +254,10 @@ _PLAIN_ACTUATORS = ("FORCE", "PASSIVE")
 _EXP_MAP_JOINTS = ("BallJoint", "FreeJoint")    # their rotation integrates on SO(3)
 
 
-def _check_joints(skel) -> None:
+def _check_joints(skel, mimic=frozenset()) -> None:
     """Refuse what DART handles as constraints (the implicit stepper replaces DART's constraint
-    solver, so it would silently drop them) and joint types it was not written for."""
+    solver, so it would silently drop them) and joint types it was not written for; mimic: the
+    names of the joints whose mimic relation the stepper was given."""
     for j in range(skel.getNumJoints()):
         joint = skel.getJoint(j)
         jtype = joint.getType()
@@ -273,7 +275,11 @@ def _check_joints(skel) -> None:
                              "as a contact shape.")
         for i in range(n):
             act = joint.getActuatorType(i) if _actuator_per_dof(joint) else joint.getActuatorType()
-            if act.name not in _PLAIN_ACTUATORS:
+            if act.name == "MIMIC" and joint.getName() not in mimic:
+                raise ValueError(f"{where} is a mimic joint: dartpy does not expose its relation, so give it "
+                                 "to the stepper, ImplicitContactStepper(world, mimic={follower: (leader, "
+                                 "multiplier, offset)}); for a URDF, mimic=ic.urdf_mimic_joints(urdf_text).")
+            if act.name not in _PLAIN_ACTUATORS and act.name != "MIMIC":
                 raise ValueError(f"{where} has actuator type {act.name}: the implicit stepper supports "
                                  "FORCE and PASSIVE joints (DART enforces servo, velocity, "
                                  "acceleration, locked and mimic joints as constraints); command "
@@ -292,18 +298,20 @@ def _actuator_per_dof(joint) -> bool:
         return False
 
 
-def scan_world(world) -> Scene:
-    """Find every body with contact shapes; validate joints, masses and shape dimensions."""
+def scan_world(world, mimic=None) -> Scene:
+    """Find every body with contact shapes; validate joints, masses and shape dimensions; mimic:
+    {follower joint name: (leader joint name, multiplier, offset)} (see mimic_rows)."""
+    mimic = dict(mimic or {})
     skeletons, bodies = [], []
     for s in range(world.getNumSkeletons()):
         skel = world.getSkeleton(s)
-        sk_kind = _joint_kind(skel)
+        sk_kind = _joint_kind(skel, frozenset(mimic))
         sk_index = -1
         if sk_kind != FIXED:
             sk_index = len(skeletons)
             skeletons.append(SkeletonRecord(skel, sk_kind, skel.getNumDofs(), -1,
                                             spring_damper=_spring_damper(skel), coulomb=_coulomb(skel),
-                                            limits=_limits(skel)))
+                                            limits=_limits(skel), mimic=_mimic_rows(skel, mimic)))
             if sk_kind == ARTICULATED:
                 _check_mass_matrix(skel)
         for b in range(skel.getNumBodyNodes()):
@@ -500,6 +508,60 @@ def _limits(skel, tol=1e-9):
     if not dofs:
         return None
     return np.array(dofs, np.int64), np.array(lo, float), np.array(hi, float)
+
+
+_ONE_DOF_JOINTS = ("RevoluteJoint", "PrismaticJoint", "ScrewJoint")
+
+
+def _mimic_rows(skel, mimic) -> tuple:
+    """(follower dof, leader dof, multiplier, offset) of the given mimic relations whose joints
+    are in this skeleton (one-dof joints, both in it)."""
+    names = {skel.getJoint(j).getName(): j for j in range(skel.getNumJoints())}
+    first = {}
+    at = 0
+    for j in range(skel.getNumJoints()):
+        first[j] = at
+        at += skel.getJoint(j).getNumDofs()
+    out = []
+    for follower, relation in mimic.items():
+        if follower not in names:
+            continue
+        leader, multiplier, offset = relation
+        jf = skel.getJoint(names[follower])
+        if leader not in names:
+            raise ValueError(f"mimic joint '{follower}' of skeleton '{skel.getName()}' follows '{leader}', "
+                             "which is not a joint of the same skeleton.")
+        jl = skel.getJoint(names[leader])
+        for jt in (jf, jl):
+            if jt.getType() not in _ONE_DOF_JOINTS:
+                raise ValueError(f"mimic relation '{follower}' -> '{leader}': joint '{jt.getName()}' is a "
+                                 f"{jt.getType()}; mimic joints must be one-dof (revolute, prismatic, screw).")
+        if not (math.isfinite(multiplier) and math.isfinite(offset)):
+            raise ValueError(f"mimic joint '{follower}': multiplier and offset must be finite.")
+        if follower == leader:
+            raise ValueError(f"mimic joint '{follower}' cannot follow itself.")
+        out.append((first[names[follower]], first[names[leader]], float(multiplier), float(offset)))
+    followers = [r[0] for r in out]
+    if set(followers) & {r[1] for r in out}:
+        raise ValueError(f"skeleton '{skel.getName()}': a mimic joint follows another mimic joint; point "
+                         "each follower at the joint that drives the chain.")
+    return tuple(out)
+
+
+def urdf_mimic_joints(urdf: str) -> dict:
+    """{follower joint: (leader joint, multiplier, offset)} of a URDF's <mimic> tags (the text,
+    or a path to the file), for ImplicitContactStepper(world, mimic=...): DART's URDF loader
+    marks such joints MIMIC but dartpy does not expose the relation."""
+    import os
+    import xml.etree.ElementTree as ET
+    text = open(urdf).read() if os.path.exists(urdf) else urdf
+    out = {}
+    for joint in ET.fromstring(text).iter("joint"):
+        tag = joint.find("mimic")
+        if tag is not None:
+            out[joint.get("name")] = (tag.get("joint"), float(tag.get("multiplier", 1.0)),
+                                      float(tag.get("offset", 0.0)))
+    return out
 
 
 def read_raw(rec: SkeletonRecord, q_out, v_out, tau_out, fext_out, dv_out=None) -> None:

@@ -7,14 +7,18 @@ impulse u_r lambda_r along g_r enters the skeleton's Newton-Euler rows:
     Coulomb friction of dof j, bound f:   g = e_j, c = 0,                  u = h f,   lambda in [-1, 1]
     lower limit lo of dof j:              g = e_j, c = (q_j - lo) / h,     u = h m_jj g,  lambda >= 0
     upper limit hi of dof j:              g = -e_j, c = (hi - q_j) / h,    u = h m_jj g,  lambda >= 0
+    mimic f = m l + o (dofs f, l):         g = e_f - m e_l,                 u = h m_ff g,  lambda free
+                                          c = (q_f - m q_l - o) / h
 
 A limit row is geometrically implicit in joint space, as [GI]'s contact rows are in space: it
 holds the position at l+1, q_j + h v_j+ >= lo (the dof's integratePositions is q + h v for every
 joint type whose limits are accepted, dart_adapter._limits), with no stabilisation constant and
-no bounce (inelastic, like the contacts). u only scales the unknown (m_jj: the dof's diagonal of M
+no bounce (inelastic, like the contacts); a mimic row holds the follower on its leader at l+1,
+q_f + h v_f+ = m (q_l + h v_l+) + o, a bilateral constraint whose impulse acts on both dofs. u only scales the unknown (m_jj: the dof's diagonal of M
 at l, g: gravity's magnitude, at least 1), as the pairs' impulse unit does.
 
-Only the rows a step needs are built: friction rows always (the joint may stick at any time), a
+Only the rows a step needs are built: friction and mimic rows always (a joint may stick at any
+time; a mimic relation always holds), a
 limit's row when the dof could reach it within the step (``near``), and a limit the solved step
 crosses although its row was left out is added and the step solved again (``crossed``), as far
 contact pairs are.
@@ -27,7 +31,7 @@ import numpy as np
 
 from .layout import JointRows
 
-FRICTION, LOWER, UPPER = "friction", "lower", "upper"
+FRICTION, LOWER, UPPER, MIMIC = "friction", "lower", "upper", "mimic"
 
 
 @dataclass
@@ -37,10 +41,11 @@ class JointModel:
     limited: np.ndarray            # dofs with an enforced limit
     lower: np.ndarray              # their limits (-inf / inf where a side is open)
     upper: np.ndarray
+    mimic: tuple = ()              # (follower dof, leader dof, multiplier, offset)
 
     @property
     def empty(self) -> bool:
-        return self.friction is None and len(self.limited) == 0
+        return self.friction is None and len(self.limited) == 0 and not self.mimic
 
 
 def near(model: JointModel, q, v, v_free, h, slack) -> set:
@@ -70,11 +75,12 @@ def crossed(model: JointModel, q, v_next, h, tol, present) -> set:
 
 def build(model: JointModel, limit_keys, q, M, h, gravity) -> JointRows | None:
     """The joint rows of one skeleton for a step of h at (q, M): friction rows for its dofs with
-    friction, then the given limit rows, in a fixed order (their keys name them)."""
+    friction, mimic rows, then the given limit rows, in a fixed order (their keys name them)."""
     k = len(q)
     keys = []
     if model.friction is not None:
         keys += [(FRICTION, int(j)) for j in np.flatnonzero(model.friction)]
+    keys += [(MIMIC, int(f)) for f, _, _, _ in model.mimic]
     keys += sorted(limit_keys, key=lambda key: (key[1], key[0]))
     if not keys:
         return None
@@ -82,11 +88,17 @@ def build(model: JointModel, limit_keys, q, M, h, gravity) -> JointRows | None:
     G, c, unit = np.zeros((n, k)), np.zeros(n), np.zeros(n)
     lo, hi = np.zeros(n), np.full(n, np.inf)
     where = {int(j): idx for idx, j in enumerate(model.limited)}
+    mimic = {int(f): (int(ld), m, o) for f, ld, m, o in model.mimic}
     for r, (kind, j) in enumerate(keys):
         if kind == FRICTION:
             G[r, j], unit[r], lo[r], hi[r] = 1.0, h * model.friction[j], -1.0, 1.0
             continue
         unit[r] = h * max(M[j, j], 1e-300) * max(gravity, 1.0)
+        if kind == MIMIC:
+            ld, m, o = mimic[j]
+            G[r, j], G[r, ld] = 1.0, -m
+            c[r], lo[r] = (q[j] - m * q[ld] - o) / h, -np.inf
+            continue
         if kind == LOWER:
             G[r, j], c[r] = 1.0, (q[j] - model.lower[where[j]]) / h
         else:
@@ -94,10 +106,10 @@ def build(model: JointModel, limit_keys, q, M, h, gravity) -> JointRows | None:
     return JointRows(G, c, unit, lo, hi, tuple(keys))
 
 
-def impulses(rows_keys, lam, units, ndof, kinds) -> np.ndarray:
-    """Per dof, the generalized impulse of the rows of the given kinds (signed along +q_j)."""
-    out = np.zeros(ndof)
-    for (kind, j), x, u in zip(rows_keys, lam, units):
+def impulses(rows: JointRows, lam, kinds) -> np.ndarray:
+    """Per dof, the generalized impulse sum_r u_r lambda_r g_r of the rows of the given kinds."""
+    out = np.zeros(rows.G.shape[1])
+    for r, (kind, _) in enumerate(rows.keys):
         if kind in kinds:
-            out[j] += (-u if kind == UPPER else u) * x
+            out += rows.unit[r] * lam[r] * rows.G[r]
     return out

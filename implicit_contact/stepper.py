@@ -158,7 +158,8 @@ class ImplicitContactStepper:
     In every case a failed step leaves the world exactly as it was.
     """
 
-    def __init__(self, world, on_failure: str = "retry", options: StepperOptions | None = None):
+    def __init__(self, world, on_failure: str = "retry", options: StepperOptions | None = None,
+                 mimic: dict | None = None):
         if on_failure not in POLICIES:
             raise ValueError(f"on_failure must be one of {POLICIES}, got {on_failure!r}")
         self.world = world
@@ -168,7 +169,12 @@ class ImplicitContactStepper:
         h = world.getTimeStep()
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
-        self.scene = adapter.scan_world(world)
+        self.scene = adapter.scan_world(world, mimic)
+        found = {rec.skeleton.getJoint(j).getName() for rec in self.scene.skeletons
+                 for j in range(rec.skeleton.getNumJoints())}
+        missing = sorted(set(mimic or {}) - found)
+        if missing:
+            raise ValueError(f"mimic joints {missing} are not joints of a mobile skeleton of this world.")
         self._objects = self._contact_objects()
         self._broadphase = Broadphase(len(self._objects))
         self._fat = None           # (lo, hi, pairs) of the last coal query (see _candidates)
@@ -194,11 +200,11 @@ class ImplicitContactStepper:
         self._joint_models = {}
         for s, rec in enumerate(self.scene.skeletons):
             dofs, lo, hi = rec.limits if rec.limits is not None else (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
-            model = joint_rows.JointModel(rec.coulomb, dofs, lo, hi)
+            model = joint_rows.JointModel(rec.coulomb, dofs, lo, hi, rec.mimic)
             if not model.empty:
                 self._joint_models[s] = model
         self._forced_limits = {}   # skeleton -> limit rows a solved step crossed (this step only)
-        self._last_joint = {}      # skeleton index -> (row keys, lambda, units), last step
+        self._last_joint = {}      # skeleton index -> (its JointRows, their lambda), last step
         self._far = {}             # pairs left out of the last step -> a lower bound of their gap now
         self._all_pairs = False    # this step: leave no far pair out (after a failure with some out)
         self._left_out = False     # this step left a far pair out
@@ -260,13 +266,18 @@ class ImplicitContactStepper:
         [N s or N m s], signed along +q (joint_rows.py; zeros where no limit row acted)."""
         return self._joint_impulse(skeleton, (joint_rows.LOWER, joint_rows.UPPER))
 
+    def joint_mimic_impulse(self, skeleton) -> np.ndarray:
+        """The impulse of the mimic relations on each dof of a skeleton in the last step (on the
+        follower and, times -multiplier, on the leader; joint_rows.py)."""
+        return self._joint_impulse(skeleton, (joint_rows.MIMIC,))
+
     def _joint_impulse(self, skeleton, kinds):
         for s, rec in enumerate(self.scene.skeletons):
             if rec.skeleton is skeleton or rec.skeleton.getName() == skeleton.getName():
                 last = self._last_joint.get(s)
                 if last is None:
                     return np.zeros(rec.ndof)
-                return joint_rows.impulses(last[0], last[1], last[2], rec.ndof, kinds)
+                return joint_rows.impulses(last[0], last[1], kinds)
         raise ValueError(f"skeleton '{skeleton.getName()}' is not stepped by this stepper")
 
     def support_wrench(self, node) -> np.ndarray:
@@ -475,7 +486,7 @@ class ImplicitContactStepper:
         self._last_support = {sp.key: (result.x[ss.y].copy(), float(result.x[ss.sigma]),
                                        problem.support_wrench(result.x, s))
                               for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
-        self._last_joint = {s: (joints[s].keys, result.x[problem.layout.joint_index[k]].copy(), joints[s].unit.copy())
+        self._last_joint = {s: (joints[s], result.x[problem.layout.joint_index[k]].copy())
                             for k, s in enumerate(att.involved) if s in joints}
         if not keep:
             self._ctx = self._context(h, ordered, pairs, problem, att)
@@ -1123,7 +1134,7 @@ class ImplicitContactStepper:
         for k, s in enumerate(att.involved):
             last = self._last_joint.get(s)
             if last is not None and not att.cold and att.joints[k] is not None:
-                carried = dict(zip(last[0], last[1]))
+                carried = dict(zip(last[0].keys, last[1]))
                 z[lay.joint_index[k]] = [carried.get(key, 0.0) for key in att.joints[k].keys]
         return z
 
