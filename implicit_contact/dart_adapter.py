@@ -20,7 +20,8 @@ position integration (`integratePositions`), world time. What this module adds:
   l; all bodies of a skeleton share its velocity unknowns (formulation.BodyKinematics). Refused at
   construction, with a sentence each: enforced position limits on Ball and Free joints (their
   rotation is not q + h v), actuators other than FORCE / PASSIVE (servo, velocity,
-  acceleration, locked and mimic joints are DART constraints), and meshes. Coulomb joint friction
+  acceleration, locked and mimic joints are DART constraints). A MeshShape is its convex hull,
+  simplified to few planes with a bounded outward error (hulls.py). Coulomb joint friction
   (joint.setCoulombFriction) and enforced position limits (joint.setLimitEnforcement) are read
   when the stepper is built and become joint rows of the step's MCP (joint_rows.py). Pairs of two bodies of the same skeleton are not candidates (no self-collision, DART's
   default).
@@ -40,10 +41,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import json
 import math
+import os
 
 import dartpy as dart
 import numpy as np
 
+from . import hulls
 from . import shapes as shp
 from .params import Compliance, Friction
 
@@ -153,9 +156,20 @@ def implicit_from_dart_shape(dart_shape, rotation, translation, planar: bool):
     if kind == "PlaneShape":
         n = R @ np.asarray(dart_shape.getNormal(), float)
         return shp.HalfSpace(n, float(dart_shape.getOffset()) + float(n @ c))
-    raise ValueError(f"{kind} is not supported by the implicit stepper: supported DART primitives are "
-                     "SphereShape, EllipsoidShape, CylinderShape, BoxShape and PlaneShape; for meshes "
-                     "and other shapes attach an implicit surface with ic.attach(body_node, shape).")
+    if kind == "MeshShape":
+        # its convex hull (MuJoCo's convention), simplified to few planes (hulls.py)
+        path = dart_shape.getMeshPath()
+        if not path or not os.path.exists(path):
+            raise ValueError(f"a MeshShape's file '{path}' cannot be read (its URI: "
+                             f"'{dart_shape.getMeshUri()}'): the stepper takes a mesh's hull from its file's "
+                             "vertices; load it from a file, or attach an implicit surface with "
+                             "ic.attach(body_node, shape).")
+        hull = hulls.mesh_hull(path, dart_shape.getScale())
+        return shp.Intersection.polytope(hull.normals, hull.offsets, center=c, rotation=R)
+    raise ValueError(f"{kind} is not supported by the implicit stepper: supported DART shapes are "
+                     "SphereShape, EllipsoidShape, CylinderShape, BoxShape, PlaneShape and MeshShape (its "
+                     "convex hull); for other shapes attach an implicit surface with "
+                     "ic.attach(body_node, shape).")
 
 
 def _placed_intersection(inter, R, c):
