@@ -528,8 +528,10 @@ _ONE_DOF_JOINTS = ("RevoluteJoint", "PrismaticJoint", "ScrewJoint")
 
 
 def _mimic_rows(skel, mimic) -> tuple:
-    """(follower dof, leader dof, multiplier, offset) of the given mimic relations whose joints
-    are in this skeleton (one-dof joints, both in it)."""
+    """(follower dof, leader dof, multiplier, offset) of the given mimic relations whose
+    followers are in this skeleton, for the joints DART marks MIMIC, as DART applies them (its URDF
+    loader leaves a joint whose leader it cannot find FORCE, and a fixed joint with a <mimic> tag
+    a WeldJoint with nothing to move: neither gets a row)."""
     names = {skel.getJoint(j).getName(): j for j in range(skel.getNumJoints())}
     first = {}
     at = 0
@@ -542,6 +544,8 @@ def _mimic_rows(skel, mimic) -> tuple:
             continue
         leader, multiplier, offset = relation
         jf = skel.getJoint(names[follower])
+        if jf.getNumDofs() == 0 or jf.getActuatorType().name != "MIMIC":
+            continue
         if leader not in names:
             raise ValueError(f"mimic joint '{follower}' of skeleton '{skel.getName()}' follows '{leader}', "
                              "which is not a joint of the same skeleton.")

@@ -326,6 +326,8 @@ class StepProblem:
             raise ValueError("refresh needs the bodies, skeletons and pairs the problem was built for")
         self.h = h
         self.skeletons, self.bodies, self.specs = skeletons, bodies, specs
+        # the pairs as this refresh saw them (the stepper's recoveries edit its spec list later)
+        self.keys = tuple(spec.key for spec in specs)
         self.supports = tuple(supports)
         self._vslice = [_as_slice(b.vindex) if b.vindex is not None else None for b in bodies]
         if source is None:

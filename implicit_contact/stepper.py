@@ -156,6 +156,9 @@ class ImplicitContactStepper:
     report.substeps says how many) and raises StepFailure if those fail too; "raise" raises at
     once; "warn" warns and returns a failed report.
     In every case a failed step leaves the world exactly as it was.
+    mimic: {follower joint name: (leader joint name, multiplier, offset)} for the joints DART marks
+    MIMIC (dartpy does not expose their relation; ``ic.urdf_mimic_joints(urdf)`` reads a URDF's);
+    like DART, a relation is applied only to a MIMIC joint with dofs.
     """
 
     def __init__(self, world, on_failure: str = "retry", options: StepperOptions | None = None,

@@ -136,3 +136,41 @@ def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
     rs = ncp.solve_mcp(sparse.fun, sparse.jac, z, sparse.lower, sparse.upper, opts)
     assert rd.steps == rs.steps
     np.testing.assert_allclose(rs.x, rd.x, rtol=1e-9, atol=1e-9)
+
+
+def test_transfer_maps_a_pair_whose_bodies_were_swapped_since_the_old_solve():
+    """recovery._transfer from a solve kept before flip_intersections swapped a pair's bodies
+    (the stepper's spec list is edited in place, so the old problem's own specs show the new
+    order): the old points, multipliers and normal impulse arrive swapped, not as a shape error
+    (measured first on example-robot-data's solo.urdf, a 46-plane foot hull on a ground box)."""
+    from implicit_contact import recovery
+    rng = np.random.default_rng(7)
+    h = 0.01
+    bodies, nv, col = [], [], 0
+    for _ in range(2):
+        kin, k = random_body(fm.FREE, 3, rng, col, h)
+        bodies.append(kin)
+        nv.append(k)
+        col += k
+    blocks = random_blocks(bodies, rng)
+    big, small = shp.Intersection.box([0.2, 0.3, 0.1]), shp.Intersection.polytope(
+        np.r_[np.eye(3), -np.eye(3), [[1.0, 1.0, 1.0]] / np.sqrt(3)], np.r_[np.full(6, 0.1), 0.12])
+    fr = Friction(0.5)
+    o_big, o_small = fm.ContactObject(0, tuple(big.functions), False), fm.ContactObject(1, tuple(small.functions), False)
+    axis = np.array([1.0, 0.0, 0.0])
+    spec_old = fm.PairSpec(("big", "small"), o_big, o_small, 3, fr, True, 0, axis, 0.05)
+    spec_new = fm.PairSpec(("small", "big"), o_small, o_big, 3, fr, True, 0, axis, 0.05)
+    specs = [spec_old]
+    old = fm.StepProblem(h, blocks, bodies, specs, fm.build_layout(nv, specs))
+    new = fm.StepProblem(h, blocks, bodies, [spec_new], fm.build_layout(nv, [spec_new]))
+    x = random_point(old.layout, rng)
+    before = old.unpack_pair(x, 0)
+    specs[0] = spec_new                                # what flip_intersections does to the list
+    z = recovery._transfer(old, x, new)
+    after = new.unpack_pair(z, 0)
+    np.testing.assert_allclose(after.a1, before.a2, atol=1e-14)
+    np.testing.assert_allclose(after.a2, before.a1, atol=1e-14)
+    np.testing.assert_array_equal(after.l1, before.l2)
+    np.testing.assert_array_equal(after.l2, before.l1)
+    assert after.p_n == before.p_n
+    np.testing.assert_array_equal(z[new.layout.v_index[0]], x[old.layout.v_index[0]])

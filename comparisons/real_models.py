@@ -1,0 +1,216 @@
+"""Real robot models dropped onto the ground: does the implicit stepper take them as loaded?
+
+Question: of the URDFs of example-robot-data (PyPI 6.0.0, `pip install ".[models]"`), which does
+the stepper accept as DART loads them (meshes, joint friction, mimic joints, zero-mass links), and
+what happens in the first fraction of a second when each falls onto a ground box, next to DART's
+own stepper on the same model with its original meshes?
+
+What is run, per URDF: DART's loader (package:// resolved with addPackageDirectory) with a
+floating root; the model placed 5 cm above a ground box (its lowest collision point), gravity -z;
+its <mimic> relations read with ic.urdf_mimic_joints. Then, alternately, one implicit step and
+one DART step (interleaved, so the machine's drifts hit both), h = 1e-3, for --duration of
+simulated time or until --budget seconds of implicit wall time.
+
+One row per model: has collision geometry, accepted (or the refusal's sentence), steps done,
+retried steps (substeps > 1), failure (StepFailure's message), deepest penetration reported by a
+contact (gap < 0), median and max implicit time per step and the median ratio to DART's, root
+height at the end for both. Written to comparisons/out/real_models.csv and printed; the summary
+line counts accepted / with collision geometry.
+
+Run: python -m comparisons.real_models [--duration 0.3] [--budget 60] [--workers 2] [--only ur5,...]
+"""
+from __future__ import annotations
+
+import argparse
+import concurrent.futures as cf
+import csv
+import glob
+import math
+import os
+import time
+import traceback
+
+import numpy as np
+
+OUT = os.path.join(os.path.dirname(__file__), "out")
+H = 1e-3
+
+
+def robots_root():
+    import importlib.util
+    spec = importlib.util.find_spec("cmeel")
+    base = os.path.dirname(os.path.dirname(spec.origin)) if spec else None
+    for cand in ([os.path.join(base, "cmeel.prefix", "share", "example-robot-data")] if base else []) + \
+            glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "cmeel.prefix", "share", "example-robot-data")):
+        if os.path.isdir(os.path.join(cand, "robots")):
+            return os.path.abspath(cand)
+    raise SystemExit("example-robot-data is not installed: pip install '.[models]'")
+
+
+def urdfs(root):
+    return sorted(glob.glob(os.path.join(root, "robots", "**", "*.urdf"), recursive=True))
+
+
+def _load(path, root):
+    import dartpy as dart
+    loader = dart.utils.DartLoader()
+    loader.addPackageDirectory("example-robot-data", root)
+    for d in glob.glob(os.path.join(root, "robots", "*")):
+        loader.addPackageDirectory(os.path.basename(d), d)
+    return loader.parseSkeleton(path)
+
+
+def _collision_nodes(skel):
+    nodes = []
+    for b in range(skel.getNumBodyNodes()):
+        body = skel.getBodyNode(b)
+        for s in range(body.getNumShapeNodes()):
+            node = body.getShapeNode(s)
+            if node.hasCollisionAspect():
+                nodes.append(node)
+    return nodes
+
+
+def _lowest_point(nodes):
+    low = math.inf
+    for node in nodes:
+        box = node.getShape().getBoundingBox()
+        lo, hi = np.asarray(box.getMin()), np.asarray(box.getMax())
+        T = node.getWorldTransform().matrix()
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        low = min(low, float((corners @ T[:3, :3].T + T[:3, 3])[:, 2].min()))
+    return low
+
+
+def _world(path, root):
+    import dartpy as dart
+    skel = _load(path, root)
+    if skel is None:
+        return None, None, None
+    world = dart.simulation.World()
+    world.setTimeStep(H)
+    world.setGravity([0.0, 0.0, -9.81])
+    world.addSkeleton(skel)
+    nodes = _collision_nodes(skel)
+    low = _lowest_point(nodes) if nodes else 0.0
+    ground = dart.dynamics.Skeleton("ground")
+    _, gb = ground.createWeldJointAndBodyNodePair()
+    gn = gb.createShapeNode(dart.dynamics.BoxShape([20.0, 20.0, 0.2]))
+    T = dart.math.Isometry3()
+    T.set_translation([0.0, 0.0, low - 0.05 - 0.1])
+    gn.setRelativeTransform(T)
+    gn.createCollisionAspect()
+    world.addSkeleton(ground)
+    return world, skel, nodes
+
+
+def run_model(path, root, duration, budget) -> dict:
+    import implicit_contact as ic
+    name = os.path.relpath(path, os.path.join(root, "robots"))
+    row = {"model": name, "collision": False, "accepted": False, "refusal": "", "steps": 0, "retried": 0,
+           "failure": "", "deepest_mm": 0.0, "median_ms": math.nan, "max_ms": math.nan, "ratio": math.nan,
+           "root_z": math.nan, "root_z_dart": math.nan, "bodies": 0, "dofs": 0}
+    try:
+        world, skel, nodes = _world(path, root)
+        if world is None:
+            row["refusal"] = "DART could not load it"
+            return row
+        row["collision"], row["bodies"], row["dofs"] = bool(nodes), skel.getNumBodyNodes(), skel.getNumDofs()
+        if not nodes:
+            return row
+        native, nskel, _ = _world(path, root)
+        try:
+            stepper = ic.ImplicitContactStepper(world, mimic=ic.urdf_mimic_joints(path))
+        except ValueError as exc:
+            row["refusal"] = str(exc)[:300]
+            return row
+        row["accepted"] = True
+        ti, tn = [], []
+        spent = 0.0
+        for _ in range(int(round(duration / H))):
+            t0 = time.perf_counter()
+            try:
+                report = stepper.step()
+            except ic.StepFailure as exc:
+                row["failure"] = str(exc)[:300]
+                break
+            t1 = time.perf_counter()
+            native.step()
+            t2 = time.perf_counter()
+            ti.append(t1 - t0)
+            tn.append(t2 - t1)
+            spent += t1 - t0
+            row["steps"] += 1
+            row["retried"] += int(report.substeps > 1)
+            gaps = [c.gap for c in report.contacts if c.p_n > 0.0]
+            if gaps:
+                row["deepest_mm"] = max(row["deepest_mm"], -1e3 * min(gaps))
+            if spent > budget:
+                break
+        if ti:
+            row["median_ms"], row["max_ms"] = 1e3 * float(np.median(ti)), 1e3 * float(np.max(ti))
+            row["ratio"] = float(np.median(ti) / np.median(tn))
+        row["root_z"] = float(skel.getBodyNode(0).getWorldTransform().translation()[2])
+        row["root_z_dart"] = float(nskel.getBodyNode(0).getWorldTransform().translation()[2])
+    except Exception as exc:                       # anything else is a defect: reported, not hidden
+        row["failure"] = "EXCEPTION " + "".join(traceback.format_exception_only(type(exc), exc)).strip()[:300]
+    return row
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=0.3, help="simulated seconds per model")
+    parser.add_argument("--budget", type=float, default=60.0, help="implicit wall seconds per model")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--only", default="", help="comma-separated substrings of model paths")
+    args = parser.parse_args(argv)
+    root = robots_root()
+    paths = urdfs(root)
+    if args.only:
+        keys = args.only.split(",")
+        paths = [p for p in paths if any(k in p for k in keys)]
+    rows = []
+    if args.workers > 1:
+        ctx = __import__("multiprocessing").get_context("spawn")
+        with cf.ProcessPoolExecutor(args.workers, mp_context=ctx) as pool:
+            futures = [pool.submit(run_model, p, root, args.duration, args.budget) for p in paths]
+            for f in cf.as_completed(futures):
+                rows.append(f.result())
+                _print_row(rows[-1])
+    else:
+        for p in paths:
+            rows.append(run_model(p, root, args.duration, args.budget))
+            _print_row(rows[-1])
+    rows.sort(key=lambda r: r["model"])
+    os.makedirs(OUT, exist_ok=True)
+    with open(os.path.join(OUT, "real_models.csv"), "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    col = [r for r in rows if r["collision"]]
+    acc = [r for r in col if r["accepted"]]
+    done = [r for r in acc if not r["failure"] and r["steps"] >= int(round(args.duration / H))]
+    failed = [r for r in acc if r["failure"]]
+    print(f"\n{len(rows)} URDFs, {len(col)} with collision geometry, {len(acc)} accepted "
+          f"({100 * len(acc) / max(len(col), 1):.0f} %), {len(done)} completed {args.duration} s, "
+          f"{len(failed)} failed, {sum(1 for r in acc if not r['failure'] and r not in done)} cut by the budget")
+    if acc:
+        ratios = np.array([r["ratio"] for r in acc if math.isfinite(r["ratio"])])
+        if len(ratios):
+            print(f"median step / DART's: median {np.median(ratios):.1f}x, max {ratios.max():.1f}x; "
+                  f"deepest penetration {max(r['deepest_mm'] for r in acc):.3g} mm")
+    for r in col:
+        if not r["accepted"]:
+            print(f"refused {r['model']}: {r['refusal']}")
+
+
+def _print_row(r):
+    state = ("no collision" if not r["collision"] else "REFUSED" if not r["accepted"]
+             else ("FAILED" if r["failure"] else "ok"))
+    print(f"{r['model']:60s} {state:12s} steps {r['steps']:4d} retried {r['retried']:3d} "
+          f"median {r['median_ms']:8.2f} ms max {r['max_ms']:8.1f} ms ratio {r['ratio']:7.1f} "
+          f"deepest {r['deepest_mm']:.3g} mm {r['failure'][:80]}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
