@@ -245,12 +245,14 @@ TIP_URDF = """<?xml version="1.0"?>
 REST_FORCE_RTOL = 1e-6
 
 
-def test_massless_welded_tip_rests_with_the_static_normal_force():
+@pytest.mark.parametrize("tip_mass", [0.0, 1e-6])
+def test_massless_welded_tip_rests_with_the_static_normal_force(tip_mass):
     """A hinged rod (1 kg, centre of mass at half its 0.5 m length) whose only contact shape is a
     sphere on a massless link welded to its end (as a UR5's ee_link, which DART steps), with a
     massless tool0 beyond it: dropped from horizontal onto a frictionless ground, it rests on the
     tip with the normal force of the statics, N = m g x_com / x_tip = m g / 2 at any angle.
-    (Before: the massless link's impulse unit was 0 and the warm start 0/0, a NaN start.)"""
+    (Before: the massless link's impulse unit was 0 and the warm start 0/0, a NaN start.) A 1e-6
+    kg tip, as robot foot frames weigh, adds its weight at the tip."""
     h, g = 2e-3, 9.81
     world = dart.simulation.World()
     world.setTimeStep(h)
@@ -259,8 +261,8 @@ def test_massless_welded_tip_rests_with_the_static_normal_force():
     opts = dart.utils.DartLoader.Options()
     opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
     loader.setOptions(opts)
-    rod = loader.parseSkeletonString(TIP_URDF, "")
-    assert rod.getBodyNode("ee_link").getMass() == 0.0 and rod.getBodyNode("tool0").getMass() == 0.0
+    rod = loader.parseSkeletonString(TIP_URDF.replace('<mass value="0"/>', f'<mass value="{tip_mass}"/>', 1), "")
+    assert rod.getBodyNode("ee_link").getMass() == tip_mass and rod.getBodyNode("tool0").getMass() == 0.0
     world.addSkeleton(rod)
     ground = dart.dynamics.Skeleton("ground")
     _, gb = ground.createWeldJointAndBodyNodePair()
@@ -278,7 +280,7 @@ def test_massless_welded_tip_rests_with_the_static_normal_force():
     sin_rest = (0.2 - 0.02) / 0.5                      # the sphere's centre 0.02 above the ground
     assert math.asin(sin_rest) == pytest.approx(float(rod.getPositions()[0]), abs=1e-6)
     assert abs(float(rod.getVelocities()[0])) < 1e-9
-    assert tip.p_n / h == pytest.approx(1.0 * g / 2, rel=REST_FORCE_RTOL)
+    assert tip.p_n / h == pytest.approx(g * (1.0 / 2 + tip_mass), rel=REST_FORCE_RTOL)   # the tip weighs too
     assert tip.gap > -1e-9
 
 
