@@ -17,7 +17,13 @@ contact (gap < 0), median and max implicit time per step and the median ratio to
 height at the end for both. Written to comparisons/out/real_models.csv and printed; the summary
 line counts accepted / with collision geometry.
 
+--hulls instead prints, per collision mesh the models use (with their URDF scale), the exact
+hull's facet planes, the simplified hull's planes (what one evaluation of it costs: one dot product
+per plane, and each plane is a multiplier of a pair's MCP), its measured outward error against the
+tolerance max(1 mm, 1 % of the mesh's size), and the time to build it; then the worst.
+
 Run: python -m comparisons.real_models [--duration 0.3] [--budget 60] [--workers 2] [--only ur5,...]
+     python -m comparisons.real_models --hulls
 """
 from __future__ import annotations
 
@@ -157,18 +163,61 @@ def run_model(path, root, duration, budget) -> dict:
     return row
 
 
+def hull_table(paths, root):
+    """The --hulls table (module docstring); returns its rows."""
+    from implicit_contact import hulls
+    seen, rows = set(), []
+    for path in paths:
+        skel = _load(path, root)
+        if skel is None:
+            continue
+        for node in _collision_nodes(skel):
+            shape = node.getShape()
+            if shape.getType() != "MeshShape":
+                continue
+            key = (shape.getMeshPath(), tuple(np.round(np.asarray(shape.getScale(), float), 12)))
+            if key in seen or not os.path.exists(key[0]):
+                continue
+            seen.add(key)
+            t0 = time.perf_counter()
+            try:
+                hull = hulls.mesh_hull(key[0], key[1])
+            except ValueError as exc:
+                print(f"{os.path.relpath(key[0], root):70s} refused: {exc}")
+                continue
+            rows.append((os.path.relpath(key[0], root), hull, time.perf_counter() - t0))
+            r = rows[-1]
+            print(f"{r[0][-70:]:70s} vertices {hull.vertices:6d} facet planes {hull.exact_planes:5d} -> "
+                  f"{len(hull.normals):4d} planes, error {1e3 * hull.error:7.3f} mm of {1e3 * hull.tolerance:7.3f} mm, "
+                  f"{r[2]:.3f} s", flush=True)
+    if rows:
+        planes = np.array([len(r[1].normals) for r in rows])
+        exact = np.array([r[1].exact_planes for r in rows])
+        ratio = np.array([r[1].error / r[1].tolerance for r in rows])
+        worst = rows[int(np.argmax(ratio))]
+        print(f"\n{len(rows)} meshes: facet planes median {np.median(exact):.0f}, p90 {np.percentile(exact, 90):.0f}, "
+              f"max {exact.max()}; simplified median {np.median(planes):.0f}, p90 {np.percentile(planes, 90):.0f}, "
+              f"max {planes.max()}; worst error {worst[1].error * 1e3:.3f} mm of {worst[1].tolerance * 1e3:.3f} mm "
+              f"({worst[0]}); every mesh within its tolerance: {bool((ratio <= 1.0).all())}")
+    return rows
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=0.3, help="simulated seconds per model")
     parser.add_argument("--budget", type=float, default=60.0, help="implicit wall seconds per model")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--only", default="", help="comma-separated substrings of model paths")
+    parser.add_argument("--hulls", action="store_true", help="the per-mesh hull table instead")
     args = parser.parse_args(argv)
     root = robots_root()
     paths = urdfs(root)
     if args.only:
         keys = args.only.split(",")
         paths = [p for p in paths if any(k in p for k in keys)]
+    if args.hulls:
+        hull_table(paths, root)
+        return
     rows = []
     if args.workers > 1:
         ctx = __import__("multiprocessing").get_context("spawn")
