@@ -24,6 +24,7 @@ tolerance max(1 mm, 1 % of the mesh's size), and the time to build it; then the 
 
 Run: python -m comparisons.real_models [--duration 0.3] [--budget 60] [--workers 2] [--only ur5,...]
      python -m comparisons.real_models --hulls
+     python -m comparisons.real_models --plot-only    (the PNG from the last CSV)
 """
 from __future__ import annotations
 
@@ -202,6 +203,34 @@ def hull_table(paths, root):
     return rows
 
 
+def plot(rows, path):
+    """comparisons/out/real_models.png: per model with collision geometry, how far it got (steps
+    done) coloured by outcome, and its median step over DART's."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    col = [r for r in rows if str(r["collision"]) == "True"]
+    names = [os.path.splitext(os.path.basename(r["model"]))[0] for r in col]
+    steps = [int(r["steps"]) for r in col]
+    ratio = [float(r["ratio"]) for r in col]
+    colour = ["grey" if str(r["accepted"]) != "True" else "tab:red" if r["failure"] else
+              "tab:green" if int(r["steps"]) >= max(steps) else "tab:orange" for r in col]
+    fig, ax = plt.subplots(1, 2, figsize=(12, 0.22 * len(col) + 1.5), sharey=True)
+    y = np.arange(len(col))
+    ax[0].barh(y, steps, color=colour)
+    ax[0].set_yticks(y, names, fontsize=7)
+    ax[0].invert_yaxis()
+    ax[0].set_xlabel(f"steps done at h = {H:g} s (green: all, orange: cut by the time budget, red: StepFailure, grey: refused)")
+    ax[1].barh(y, ratio, color=colour)
+    ax[1].axvline(30.0, color="k", ls="--", lw=0.8)
+    ax[1].set_xscale("log")
+    ax[1].set_xlabel("median implicit step / DART's (dashed: 30x)")
+    fig.suptitle("example-robot-data dropped onto a ground box: implicit stepper against DART")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=0.3, help="simulated seconds per model")
@@ -209,7 +238,12 @@ def main(argv=None):
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--only", default="", help="comma-separated substrings of model paths")
     parser.add_argument("--hulls", action="store_true", help="the per-mesh hull table instead")
+    parser.add_argument("--plot-only", action="store_true", help="draw the PNG from the last CSV")
     args = parser.parse_args(argv)
+    if args.plot_only:
+        with open(os.path.join(OUT, "real_models.csv")) as f:
+            plot(list(csv.DictReader(f)), os.path.join(OUT, "real_models.png"))
+        return
     root = robots_root()
     paths = urdfs(root)
     if args.only:
@@ -236,6 +270,7 @@ def main(argv=None):
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
+    plot([{k: str(v) for k, v in r.items()} for r in rows], os.path.join(OUT, "real_models.png"))
     col = [r for r in rows if r["collision"]]
     acc = [r for r in col if r["accepted"]]
     done = [r for r in acc if not r["failure"] and r["steps"] >= int(round(args.duration / H))]
