@@ -44,14 +44,12 @@ H = 1e-3
 
 
 def robots_root():
-    import importlib.util
-    spec = importlib.util.find_spec("cmeel")
-    base = os.path.dirname(os.path.dirname(spec.origin)) if spec else None
-    for cand in ([os.path.join(base, "cmeel.prefix", "share", "example-robot-data")] if base else []) + \
-            glob.glob(os.path.join(os.path.dirname(np.__file__), "..", "cmeel.prefix", "share", "example-robot-data")):
-        if os.path.isdir(os.path.join(cand, "robots")):
-            return os.path.abspath(cand)
-    raise SystemExit("example-robot-data is not installed: pip install '.[models]'")
+    """example-robot-data's share directory (the PyPI wheel installs it under cmeel.prefix)."""
+    import sysconfig
+    root = os.path.join(sysconfig.get_paths()["purelib"], "cmeel.prefix", "share", "example-robot-data")
+    if not os.path.isdir(os.path.join(root, "robots")):
+        raise SystemExit("example-robot-data is not installed: pip install '.[models]'")
+    return root
 
 
 def urdfs(root):

@@ -165,6 +165,10 @@ def implicit_from_dart_shape(dart_shape, rotation, translation, planar: bool):
                              "vertices; load it from a file, or attach an implicit surface with "
                              "ic.attach(body_node, shape).")
         hull = hulls.mesh_hull(path, dart_shape.getScale())
+        if not hull.error <= hull.tolerance:
+            raise ValueError(f"the convex hull of mesh '{path}' cannot be simplified to within "
+                             f"{hull.tolerance:.3g} m in {len(hull.normals)} planes (error {hull.error:.3g} m); "
+                             "attach an implicit surface with ic.attach(body_node, shape).")
         return shp.Intersection.polytope(hull.normals, hull.offsets, center=c, rotation=R)
     raise ValueError(f"{kind} is not supported by the implicit stepper: supported DART shapes are "
                      "SphereShape, EllipsoidShape, CylinderShape, BoxShape, PlaneShape and MeshShape (its "
@@ -314,7 +318,7 @@ def _actuator_per_dof(joint) -> bool:
 
 def scan_world(world, mimic=None) -> Scene:
     """Find every body with contact shapes; validate joints, masses and shape dimensions; mimic:
-    {follower joint name: (leader joint name, multiplier, offset)} (see mimic_rows)."""
+    {follower joint name: (leader joint name, multiplier, offset)} (see _mimic_rows)."""
     mimic = dict(mimic or {})
     skeletons, bodies = [], []
     for s in range(world.getNumSkeletons()):
@@ -360,6 +364,10 @@ def scan_world(world, mimic=None) -> Scene:
                 if skeletons[sk_index].body_index < 0:
                     skeletons[sk_index].body_index = rec.index
                 skeletons[sk_index].body_indices.append(rec.index)
+    known = {rec.skeleton.getJoint(j).getName() for rec in skeletons for j in range(rec.skeleton.getNumJoints())}
+    missing = sorted(set(mimic) - known)
+    if missing:
+        raise ValueError(f"mimic joints {missing} are not joints of a mobile skeleton of this world.")
     return Scene(skeletons, bodies)
 
 
@@ -499,7 +507,6 @@ def _limits(skel, tol=1e-9):
     """(dofs, lower, upper) of the dofs whose joints enforce position limits with a finite side,
     or None; refuses a skeleton that starts outside them."""
     dofs, lo, hi = [], [], []
-    at = 0
     for j in range(skel.getNumJoints()):
         joint = skel.getJoint(j)
         n = joint.getNumDofs()
@@ -515,10 +522,9 @@ def _limits(skel, tol=1e-9):
                         raise ValueError(f"joint '{joint.getName()}' of skeleton '{skel.getName()}' starts at "
                                          f"{q} on dof {i}, outside its enforced limits [{a}, {b}]; move it "
                                          "inside them.")
-                    dofs.append(at + i)
+                    dofs.append(joint.getIndexInSkeleton(i))
                     lo.append(a)
                     hi.append(b)
-        at += n
     if not dofs:
         return None
     return np.array(dofs, np.int64), np.array(lo, float), np.array(hi, float)
@@ -533,11 +539,6 @@ def _mimic_rows(skel, mimic) -> tuple:
     loader leaves a joint whose leader it cannot find FORCE, and a fixed joint with a <mimic> tag
     a WeldJoint with nothing to move: neither gets a row)."""
     names = {skel.getJoint(j).getName(): j for j in range(skel.getNumJoints())}
-    first = {}
-    at = 0
-    for j in range(skel.getNumJoints()):
-        first[j] = at
-        at += skel.getJoint(j).getNumDofs()
     out = []
     for follower, relation in mimic.items():
         if follower not in names:
@@ -558,7 +559,7 @@ def _mimic_rows(skel, mimic) -> tuple:
             raise ValueError(f"mimic joint '{follower}': multiplier and offset must be finite.")
         if follower == leader:
             raise ValueError(f"mimic joint '{follower}' cannot follow itself.")
-        out.append((first[names[follower]], first[names[leader]], float(multiplier), float(offset)))
+        out.append((jf.getIndexInSkeleton(0), jl.getIndexInSkeleton(0), float(multiplier), float(offset)))
     followers = [r[0] for r in out]
     if set(followers) & {r[1] for r in out}:
         raise ValueError(f"skeleton '{skel.getName()}': a mimic joint follows another mimic joint; point "

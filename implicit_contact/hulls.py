@@ -70,7 +70,8 @@ def _distance(v, V, scale):
 
 def simplify(points, tolerance: float | None = None, max_planes: int = 256) -> SimplifiedHull:
     """The simplified hull P of the module docstring; tolerance defaults to max(1 mm, 1 % of
-    the largest extent). Raises ValueError for fewer than 4 affinely independent points."""
+    the largest extent). Stops at max_planes even if the error is still above the tolerance (the
+    result's error says so). Raises ValueError for fewer than 4 affinely independent points."""
     P = np.asarray(points, float).reshape(-1, 3)
     if len(P) < 4 or not np.isfinite(P).all():
         raise ValueError("a collision mesh needs at least 4 finite vertices spanning a volume")
@@ -83,7 +84,6 @@ def simplify(points, tolerance: float | None = None, max_planes: int = 256) -> S
     N = list(_KDOP)
     b = list((V_h @ _KDOP.T).max(axis=0))
     centre = V_h.mean(axis=0)
-    error = np.inf
     while True:
         A = np.asarray(N)
         hs = HalfspaceIntersection(np.c_[A, -np.asarray(b)], centre)

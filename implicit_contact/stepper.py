@@ -40,6 +40,7 @@ import numpy as np
 from . import bundles
 from . import dart_adapter as adapter
 from . import formulation as fm
+from . import joint_rows
 from . import ncp
 from . import recovery
 from . import shapes as shp
@@ -52,7 +53,6 @@ from .params import Compliance, Friction
 from .rows import checks as rk
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
-from . import joint_rows
 
 # ---------------------------------------------------------------------------------------------
 # options and reports
@@ -173,11 +173,6 @@ class ImplicitContactStepper:
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
         self.scene = adapter.scan_world(world, mimic)
-        found = {rec.skeleton.getJoint(j).getName() for rec in self.scene.skeletons
-                 for j in range(rec.skeleton.getNumJoints())}
-        missing = sorted(set(mimic or {}) - found)
-        if missing:
-            raise ValueError(f"mimic joints {missing} are not joints of a mobile skeleton of this world.")
         self._objects = self._contact_objects()
         self._broadphase = Broadphase(len(self._objects))
         self._fat = None           # (lo, hi, pairs) of the last coal query (see _candidates)
