@@ -88,3 +88,66 @@ def jacobian_error(problem, z, eps=1e-6) -> float:
         e[i] = eps
         J_fd[:, i] = (problem._assemble(z + e, False)[0] - problem._assemble(z - e, False)[0]) / (2 * eps)
     return float(np.max(np.abs(J - J_fd) / np.maximum(1.0, np.abs(J_fd))))
+
+
+# -- small DART worlds for the tests (dartpy imported on first use) ---------------------------------
+def dart_world(h, gravity=9.81):
+    """An empty DART world of step h with gravity -gravity along z."""
+    import dartpy as dart
+    world = dart.simulation.World()
+    world.setTimeStep(h)
+    world.setGravity([0.0, 0.0, -gravity])
+    return world
+
+
+def ground_box(world, top=0.0, size=(4.0, 4.0, 0.1), mu=None):
+    """A welded BoxShape ground (collision aspect; friction mu if given) whose top face is at z =
+    top; returns its body node."""
+    import dartpy as dart
+    ground = dart.dynamics.Skeleton("ground")
+    _, body = ground.createWeldJointAndBodyNodePair()
+    node = body.createShapeNode(dart.dynamics.BoxShape(list(size)))
+    T = dart.math.Isometry3()
+    T.set_translation([0.0, 0.0, top - size[2] / 2])
+    node.setRelativeTransform(T)
+    node.createCollisionAspect()
+    if mu is not None:
+        node.createDynamicsAspect().setFrictionCoeff(mu)
+    world.addSkeleton(ground)
+    return body
+
+
+def urdf_skeleton(text, fixed_root=True):
+    """A skeleton from URDF text by DART's loader, its root welded (fixed_root) or floating."""
+    import dartpy as dart
+    loader = dart.utils.DartLoader()
+    if fixed_root:
+        opts = dart.utils.DartLoader.Options()
+        opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
+        loader.setOptions(opts)
+    return loader.parseSkeletonString(text, "")
+
+
+def revolute_pendulum(world, q0, mass=1.0, length=0.5, friction=0.0, limits=None, bob_radius=None):
+    """A bob of mass (inertia 1e-3 about its centre) at length below a revolute axis along y at the
+    origin (positive q swings it towards -x), with Coulomb joint friction, enforced limits
+    (lower, upper) and a sphere of bob_radius if given; added to world at q0."""
+    import dartpy as dart
+    skel = dart.dynamics.Skeleton("pendulum")
+    joint, body = skel.createRevoluteJointAndBodyNodePair()
+    joint.setAxis([0.0, 1.0, 0.0])
+    body.setMass(mass)
+    body.setMomentOfInertia(1e-3, 1e-3, 1e-3)
+    T = dart.math.Isometry3()
+    T.set_translation([0.0, 0.0, length])
+    joint.setTransformFromChildBodyNode(T)
+    joint.setCoulombFriction(0, friction)
+    if limits is not None:
+        joint.setPositionLowerLimit(0, limits[0])
+        joint.setPositionUpperLimit(0, limits[1])
+        joint.setLimitEnforcement(True)
+    if bob_radius is not None:
+        body.createShapeNode(dart.dynamics.SphereShape(bob_radius)).createCollisionAspect()
+    world.addSkeleton(skel)
+    skel.setPositions([q0])
+    return skel

@@ -8,7 +8,7 @@ import pytest
 
 import implicit_contact as ic
 from implicit_contact import formulation as fm
-from implicit_contact.testing import jacobian_error, random_blocks, random_point
+from implicit_contact.testing import dart_world, ground_box, jacobian_error, random_blocks, random_point, urdf_skeleton
 from implicit_contact import shapes as shp
 from implicit_contact.closest import closest_points
 from implicit_contact.params import Friction
@@ -141,14 +141,8 @@ URDF = """<?xml version="1.0"?>
 
 
 def _arm_world(h, mu=0.5):
-    world = dart.simulation.World()
-    world.setTimeStep(h)
-    world.setGravity([0.0, 0.0, -9.81])
-    loader = dart.utils.DartLoader()
-    opts = dart.utils.DartLoader.Options()
-    opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
-    loader.setOptions(opts)
-    arm = loader.parseSkeletonString(URDF, "")
+    world = dart_world(h)
+    arm = urdf_skeleton(URDF)
     arm.setPositions([-0.6, 0.0])
     world.addSkeleton(arm)
     ball = dart.dynamics.Skeleton("ball")
@@ -162,15 +156,7 @@ def _arm_world(h, mu=0.5):
     body.setMomentOfInertia(inertia, inertia, inertia)
     ball.setPositions([0.0, 0.0, 0.0, 0.55, 0.0, r])
     world.addSkeleton(ball)
-    ground = dart.dynamics.Skeleton("ground")
-    _, gb = ground.createWeldJointAndBodyNodePair()
-    gn = gb.createShapeNode(dart.dynamics.BoxShape([4.0, 4.0, 0.1]))
-    T = np.eye(4)
-    T[2, 3] = -0.05
-    gn.setRelativeTransform(_iso(T))
-    gn.createCollisionAspect()
-    gn.createDynamicsAspect().setFrictionCoeff(mu)
-    world.addSkeleton(ground)
+    ground_box(world, mu=mu)
     for k in range(arm.getNumBodyNodes()):
         b = arm.getBodyNode(k)
         for s in range(b.getNumShapeNodes()):
@@ -254,24 +240,11 @@ def test_massless_welded_tip_rests_with_the_static_normal_force(tip_mass):
     (Before: the massless link's impulse unit was 0 and the warm start 0/0, a NaN start.) A 1e-6
     kg tip, as robot foot frames weigh, adds its weight at the tip."""
     h, g = 2e-3, 9.81
-    world = dart.simulation.World()
-    world.setTimeStep(h)
-    world.setGravity([0.0, 0.0, -g])
-    loader = dart.utils.DartLoader()
-    opts = dart.utils.DartLoader.Options()
-    opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
-    loader.setOptions(opts)
-    rod = loader.parseSkeletonString(TIP_URDF.replace('<mass value="0"/>', f'<mass value="{tip_mass}"/>', 1), "")
+    world = dart_world(h, g)
+    rod = urdf_skeleton(TIP_URDF.replace('<mass value="0"/>', f'<mass value="{tip_mass}"/>', 1))
     assert rod.getBodyNode("ee_link").getMass() == tip_mass and rod.getBodyNode("tool0").getMass() == 0.0
     world.addSkeleton(rod)
-    ground = dart.dynamics.Skeleton("ground")
-    _, gb = ground.createWeldJointAndBodyNodePair()
-    gn = gb.createShapeNode(dart.dynamics.BoxShape([4.0, 4.0, 0.1]))
-    T = np.eye(4)
-    T[2, 3] = -0.05
-    gn.setRelativeTransform(_iso(T))
-    gn.createCollisionAspect()
-    world.addSkeleton(ground)
+    gb = ground_box(world)
     stepper = ic.ImplicitContactStepper(world)
     stepper.set_pair_friction(rod.getBodyNode("ee_link"), gb, Friction(mu=0.0))
     for _ in range(int(round(0.6 / h))):

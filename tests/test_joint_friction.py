@@ -14,6 +14,7 @@ import pytest
 
 import implicit_contact as ic
 from implicit_contact.params import Friction
+from implicit_contact.testing import dart_world, ground_box, revolute_pendulum
 
 G = 9.81
 # DART's own stepper and this one agree to round-off while the pendulum slips; once its joint
@@ -23,16 +24,9 @@ DART_AGREEMENT = 5e-11     # rad, over the 1 s runs
 STICK_TOL = 1e-12          # a stuck dof's velocity [rad/s]
 
 
-def _world(h, gravity=True):
-    world = dart.simulation.World()
-    world.setTimeStep(h)
-    world.setGravity([0.0, 0.0, -G if gravity else 0.0])
-    return world
-
-
 def _wheel(h, f, w0, inertia):
     """A wheel on a vertical revolute axis: no torque but the joint friction f."""
-    world = _world(h)
+    world = dart_world(h, G)
     skel = dart.dynamics.Skeleton("wheel")
     joint, body = skel.createRevoluteJointAndBodyNodePair()
     joint.setAxis([0.0, 0.0, 1.0])
@@ -46,22 +40,8 @@ def _wheel(h, f, w0, inertia):
 
 def _pendulum(h, f, q0, m=1.0, length=0.5, shape=False):
     """A point-like bob of mass m at distance length below a horizontal revolute axis (y)."""
-    world = _world(h)
-    skel = dart.dynamics.Skeleton("pendulum")
-    joint, body = skel.createRevoluteJointAndBodyNodePair()
-    joint.setAxis([0.0, 1.0, 0.0])
-    body.setMass(m)
-    body.setMomentOfInertia(1e-3, 1e-3, 1e-3)
-    T = dart.math.Isometry3()
-    T.set_translation([0.0, 0.0, length])
-    joint.setTransformFromChildBodyNode(T)
-    joint.setCoulombFriction(0, f)
-    if shape:
-        node = body.createShapeNode(dart.dynamics.SphereShape(0.05))
-        node.createCollisionAspect()
-    world.addSkeleton(skel)
-    skel.setPositions([q0])
-    return world, skel
+    world = dart_world(h, G)
+    return world, revolute_pendulum(world, q0, m, length, friction=f, bob_radius=0.05 if shape else None)
 
 
 def test_spinning_wheel_decelerates_at_f_over_I_and_stops_for_good():
@@ -131,14 +111,7 @@ def test_joint_friction_and_contact_in_one_mcp():
     the rigid problem shares them out is not unique; their sum is), the friction within h f."""
     h, m, length, f = 1e-3, 1.0, 0.5, 0.5
     world, pend = _pendulum(h, f, 1.2, m=m, length=length, shape=True)
-    ground = dart.dynamics.Skeleton("ground")
-    _, gb = ground.createWeldJointAndBodyNodePair()
-    gn = gb.createShapeNode(dart.dynamics.BoxShape([4.0, 4.0, 0.1]))
-    T = dart.math.Isometry3()
-    T.set_translation([0.0, 0.0, -0.05 - 0.5 + 0.1])    # top 0.1 m above the bob's lowest point
-    gn.setRelativeTransform(T)
-    gn.createCollisionAspect()
-    world.addSkeleton(ground)
+    gb = ground_box(world, top=-0.5 + 0.1)              # 0.1 m above the hanging bob's lowest point
     stepper = ic.ImplicitContactStepper(world)
     stepper.set_pair_friction(pend.getBodyNode(0), gb, Friction(mu=0.0))
     touched = False

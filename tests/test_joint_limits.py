@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import implicit_contact as ic
+from implicit_contact.testing import dart_world, revolute_pendulum
 
 G = 9.81
 H = 1e-3
@@ -22,26 +23,8 @@ LIMIT_TOL = 1e-12          # how far past a held limit q may end [rad] (solver t
 def _pendulum(q0, lower=-np.inf, upper=np.inf, bob_radius=None, mass=M):
     """A bob of mass m at LENGTH below a horizontal revolute axis (y) at the origin; positive q
     swings it towards -x."""
-    world = dart.simulation.World()
-    world.setTimeStep(H)
-    world.setGravity([0.0, 0.0, -G])
-    skel = dart.dynamics.Skeleton("pendulum")
-    joint, body = skel.createRevoluteJointAndBodyNodePair()
-    joint.setAxis([0.0, 1.0, 0.0])
-    body.setMass(mass)
-    body.setMomentOfInertia(1e-3, 1e-3, 1e-3)
-    T = dart.math.Isometry3()
-    T.set_translation([0.0, 0.0, LENGTH])
-    joint.setTransformFromChildBodyNode(T)
-    joint.setPositionLowerLimit(0, lower)
-    joint.setPositionUpperLimit(0, upper)
-    joint.setLimitEnforcement(True)
-    if bob_radius is not None:
-        node = body.createShapeNode(dart.dynamics.SphereShape(bob_radius))
-        node.createCollisionAspect()
-    world.addSkeleton(skel)
-    skel.setPositions([q0])
-    return world, skel
+    world = dart_world(H, G)
+    return world, revolute_pendulum(world, q0, mass, LENGTH, limits=(lower, upper), bob_radius=bob_radius)
 
 
 def test_pendulum_falls_onto_its_lower_limit_and_rests_with_the_static_impulse():

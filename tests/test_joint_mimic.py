@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import implicit_contact as ic
+from implicit_contact.testing import dart_world, urdf_skeleton
 
 H = 1e-3
 M_LEADER, M_FOLLOWER = 0.2, 0.1
@@ -40,15 +41,10 @@ GRIPPER = f"""<?xml version="1.0"?>
 """
 
 
-def _world(gravity=(0.0, 0.0, 0.0)):
-    world = dart.simulation.World()
-    world.setTimeStep(H)
-    world.setGravity(list(gravity))
-    loader = dart.utils.DartLoader()
-    opts = dart.utils.DartLoader.Options()
-    opts.mDefaultRootJointType = dart.utils.DartLoader.RootJointType.FIXED
-    loader.setOptions(opts)
-    gripper = loader.parseSkeletonString(GRIPPER, "")
+def _world():
+    """The gripper, its palm welded, without gravity."""
+    world = dart_world(H, gravity=0.0)
+    gripper = urdf_skeleton(GRIPPER)
     world.addSkeleton(gripper)
     return world, gripper
 

@@ -8,6 +8,7 @@ from scipy.optimize import minimize
 
 import implicit_contact as ic
 from implicit_contact import hulls
+from implicit_contact.testing import dart_world, ground_box
 
 DATA = os.path.join(os.path.dirname(__file__), "data")
 CONTAINS_TOL = 1e-12       # every hull vertex inside the simplified hull [m]
@@ -62,9 +63,7 @@ def test_obj_and_stl_vertices_are_read(tmp_path):
 
 
 def _drop(mesh: bool, tilt: float):
-    world = dart.simulation.World()
-    world.setTimeStep(1e-3)
-    world.setGravity([0.0, 0.0, -9.81])
+    world = dart_world(1e-3)
     if mesh:
         box = dart.utils.DartLoader().parseSkeleton(os.path.join(DATA, "mesh_box.urdf"))
         assert box.getBodyNode(0).getShapeNode(0).getShape().getType() == "MeshShape"
@@ -77,14 +76,7 @@ def _drop(mesh: bool, tilt: float):
         body.setMomentOfInertia(8.333e-4, 8.333e-4, 8.333e-4)
     box.setPositions([tilt, 0.0, 0.0, 0.0, 0.0, 0.1])
     world.addSkeleton(box)
-    ground = dart.dynamics.Skeleton("ground")
-    _, gb = ground.createWeldJointAndBodyNodePair()
-    gn = gb.createShapeNode(dart.dynamics.BoxShape([2.0, 2.0, 0.1]))
-    T = dart.math.Isometry3()
-    T.set_translation([0.0, 0.0, -0.05])
-    gn.setRelativeTransform(T)
-    gn.createCollisionAspect()
-    world.addSkeleton(ground)
+    ground_box(world, size=(2.0, 2.0, 0.1))
     stepper = ic.ImplicitContactStepper(world)
     for _ in range(500):
         stepper.step()
