@@ -282,8 +282,11 @@ def far_after(P, gap, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, h, tol, 
 @kernel
 def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff, V_solved, VF, margins, h, tol):
     """Whether some piece's solved motion leaves what its broadphase margin allowed for
-    (ImplicitContactStepper._uncovered): h (|dv| + |d omega| rho) > margin - 9 tol with dv the
-    solved minus the free-flight velocity; always for articulated and unbounded moving pieces."""
+    (ImplicitContactStepper._uncovered). A piece's candidate box joins its boxes at l and after
+    the free step, each grown by its margin; its solved end pose is covered if it lies within the
+    margin (less 9 tol) of either pose: h (|dv| + |d omega| rho) with dv the solved velocity
+    minus the free-flight one, or minus zero (a body brought to rest ends where it was). Always
+    for articulated and unbounded moving pieces."""
     for o in range(ob_body.shape[0]):
         b = ob_body[o]
         kind = bd_kind[b]
@@ -292,17 +295,25 @@ def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff
         if kind == ARTICULATED or not ob_bounded[o]:
             return True
         off = sk_voff[bd_sk[b]]
-        if kind == PLANAR:
-            lin = math.sqrt((V_solved[off] - VF[off]) ** 2 + (V_solved[off + 1] - VF[off + 1]) ** 2)
-            ang = abs(V_solved[off + 2] - VF[off + 2])
-        else:
-            lin = math.sqrt((V_solved[off + 3] - VF[off + 3]) ** 2 + (V_solved[off + 4] - VF[off + 4]) ** 2
-                            + (V_solved[off + 5] - VF[off + 5]) ** 2)
-            ang = math.sqrt((V_solved[off] - VF[off]) ** 2 + (V_solved[off + 1] - VF[off + 1]) ** 2
-                            + (V_solved[off + 2] - VF[off + 2]) ** 2)
-        if h * (lin + ang * ob_radius[o]) > margins[o] - 9.0 * tol:
+        allowed = margins[o] - 9.0 * tol
+        if (_motion_off(kind, V_solved, VF, off, 1.0, h, ob_radius[o]) > allowed
+                and _motion_off(kind, V_solved, VF, off, 0.0, h, ob_radius[o]) > allowed):
             return True
     return False
+
+
+@kernel
+def _motion_off(kind, V_solved, VF, off, s, h, rho):
+    """h (|v - s v_F| + |omega - s omega_F| rho) of a free or planar body at columns off."""
+    if kind == PLANAR:
+        lin = math.sqrt((V_solved[off] - s * VF[off]) ** 2 + (V_solved[off + 1] - s * VF[off + 1]) ** 2)
+        ang = abs(V_solved[off + 2] - s * VF[off + 2])
+    else:
+        lin = math.sqrt((V_solved[off + 3] - s * VF[off + 3]) ** 2 + (V_solved[off + 4] - s * VF[off + 4]) ** 2
+                        + (V_solved[off + 5] - s * VF[off + 5]) ** 2)
+        ang = math.sqrt((V_solved[off] - s * VF[off]) ** 2 + (V_solved[off + 1] - s * VF[off + 1]) ** 2
+                        + (V_solved[off + 2] - s * VF[off + 2]) ** 2)
+    return h * (lin + ang * rho)
 
 
 @kernel
