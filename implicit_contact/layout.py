@@ -49,6 +49,7 @@ class PairSpec:
     compliance: object = None  # an ic.Compliance: a quasi-rigid pair (rows/contact.py, [GI] Sec. 5)
     compliant_side: int = 2    # which body carries the deformed layer
     delta_prev: float = 0.0    # its normal deflection at l
+    patch: bool = False        # friction's e_r is the contact patch's at l (patch.py), per step
 
 
 @dataclass

@@ -95,6 +95,10 @@ def friction_rows(stepper, att: Attempt, problem, result):
     att.added = on
     for k in on + off:
         specs[k].with_friction = k in on
+    if on:
+        problem._evaluated_at(result.x)
+        for k in on:                    # a new contact's patch along its solved normal
+            stepper._add_patch_torsion(specs[k], problem._pairs_at[k][2])
     return RETRY
 
 
@@ -134,6 +138,7 @@ def flip_intersections(stepper, att: Attempt, problem, result):
         stepper._orient_intersections(*old.objects, flip=True)
         new = stepper._pair_spec(*att.pairs[k], att.h, att.body_pos, att.states)
         new.with_friction, new.tangent_axis = old.with_friction, old.tangent_axis
+        new.friction, new.patch = old.friction, old.patch       # (the patch is the pair's, either way)
         seeds[k] = _flip_seed(problem, x, new, att.tol)
         att.specs[k] = new
     att.flip = (problem, x, seeds)

@@ -109,6 +109,8 @@ INTERIOR_TOL = 1e-9        # depth (in length units of the offsets, at least 1) 
 UNBOUNDED_INTERIOR_DEPTH = 1.0   # how deep (length units) an interior point of an unbounded
                                  # body is placed: any positive depth is "strictly inside"
 MAX_VERTEX_COMBINATIONS = 20000  # unbounded polyhedra: vertex enumeration limit before LPs
+FACE_SAMPLES = 64               # points per rim circle of a capped cylinder's face (patch.py):
+                                # the cap's polygon has 0.16 % less area than its disc
 RAY_NEWTON_ITERATIONS = 100      # 1-D Newton from outside on a convex function: monotone
 
 
@@ -195,6 +197,13 @@ def _check_pose(rotation, translation, dim: int) -> tuple[np.ndarray, np.ndarray
     if np.max(np.abs(R.T @ R - np.eye(dim))) > ROTATION_TOL or np.linalg.det(R) < 0.0:
         raise ValueError(f"pose rotation must be a proper rotation (orthonormal, det +1), got {R.tolist()}")
     return R, t
+
+
+def _least_aligned(u: np.ndarray) -> np.ndarray:
+    """The coordinate axis least aligned with u."""
+    e = np.zeros(len(u))
+    e[int(np.argmin(np.abs(u)))] = 1.0
+    return e
 
 
 def _points(x, dim: int) -> np.ndarray:
@@ -301,6 +310,11 @@ class ConvexFunction(ABC):
         """A boundary point maximising direction . x (body frame), where a closed form exists."""
         raise NotImplementedError(f"{type(self).__name__} has no closed-form support point "
                                   "(unbounded or no formula).")
+
+    def face_points(self) -> np.ndarray | None:
+        """Body-frame points whose hull along any normal spans the face a contact can press on
+        (patch.py); a curved function has none: it touches in a point."""
+        return np.empty((0, self.dim))
 
     def ray_exit(self, origin, direction) -> float:
         """tau >= 0 with f(origin + tau direction) = 0 for an origin inside (inf if never).
@@ -781,6 +795,10 @@ class _HalfSpaceBase(_Primitive):
         self.normal = n / norm
         self.offset = self._offset_in / norm
 
+    def face_points(self):
+        """None: the whole plane is its face (patch.py)."""
+        return None
+
     def plane(self) -> tuple[np.ndarray, float]:
         """(unit normal, offset) of the boundary in the body frame (placement applied)."""
         n = self._R0 @ self.normal
@@ -1256,6 +1274,24 @@ class Intersection:
             return end + r * perp / norm if norm > 0.0 else end.copy()
         raise NotImplementedError("this Intersection has no closed-form support point (only bounded "
                                   "polytopes and capped cylinders have one).")
+
+    def face_points(self, samples=FACE_SAMPLES) -> np.ndarray | None:
+        """Body-frame points whose hull along any normal spans the face a contact can press on
+        (patch.py): a polytope's vertices; a capped cylinder's rim circles sampled at samples
+        points each (its cap is that polygon, its side a segment along the axis). [] (no face
+        known: a contact touches in a point) for other intersections."""
+        if self._poly is not None and self._poly.bounded and len(self._poly.b) == len(self._functions):
+            return self._poly.vertices.copy()
+        if self._cylinder is not None and self._cylinder[3] and self.dim == 3:
+            r, p0, p1, _ = self._cylinder
+            u = (p1 - p0) / np.linalg.norm(p1 - p0)
+            e1 = np.cross(u, _least_aligned(u))
+            e1 /= np.linalg.norm(e1)
+            e2 = np.cross(u, e1)
+            t = 2.0 * math.pi * np.arange(samples) / samples
+            ring = r * (np.cos(t)[:, None] * e1 + np.sin(t)[:, None] * e2)
+            return np.r_[p0 + ring, p1 + ring]
+        return np.empty((0, self.dim))
 
     def ray_exit(self, origin, direction) -> float:
         """First exit of the ray from the body: the smallest member exit (origin inside)."""

@@ -42,6 +42,7 @@ from . import dart_adapter as adapter
 from . import formulation as fm
 from . import joint_rows
 from . import ncp
+from . import patch as contact_patch
 from . import recovery
 from . import shapes as shp
 from . import repeat_kernels as rk_repeat
@@ -51,6 +52,7 @@ from .broadphase import Broadphase
 from .memory import PairMemory, choose_axis, warm_start as memory_warm_start
 from .params import Compliance, Friction
 from .rows import checks as rk
+from .rows import contact as rc
 from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
 
@@ -68,6 +70,9 @@ class StepperOptions:
     skip_far_pairs: leave out of the MCP the candidate pairs that cannot touch within the step (a
         known gap larger than a bound on the pieces' relative motion), checked again with the
         solved velocities (see ImplicitContactStepper._far_pairs); False keeps every candidate.
+    patch_torsion: a touching pair whose friction has no e_r of its own resists spinning with
+        its contact patch's torsion radius (patch.py: a box on its face, a cylinder on its cap or
+        side); False leaves such pairs without torsion rows.
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
@@ -75,6 +80,7 @@ class StepperOptions:
     retry_iterations_factor: int = 4
     check_penetration_at_start: bool = True
     skip_far_pairs: bool = True
+    patch_torsion: bool = True
 
     def __post_init__(self):
         if not (self.contact_tolerance > 0 and math.isfinite(self.contact_tolerance)):
@@ -504,6 +510,7 @@ class ImplicitContactStepper:
         eligible = np.array([self._gap_bound_applies(i, j) for i, j in pairs], np.bool_)
         ctx = _Context(h, P, mask, gaps, problem, att, eligible)
         if problem is not None:
+            ctx.patches = [k for k, sp in enumerate(att.specs) if self._patch_applies(sp)]
             src = next(c[3] for c in self._problems.values() if c[0] is problem)
             n, npairs, nc = problem.layout.n, len(att.specs), len(P)
             ctx.sup_y = np.zeros((len(problem.supports), 4))
@@ -548,6 +555,16 @@ class ImplicitContactStepper:
         if ctx.solver is None or ctx.solver[0] is not opts:
             ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
         _, S, SP, buf, pbuf = ctx.solver
+        for k in ctx.patches:
+            # as _pair_spec would: the patch at l along the last normal; a torsion row that
+            # appears or goes changes the layout
+            spec = att.specs[k]
+            e_r = self._patch_radius(spec.objects, memory.rep[k, rc.R_N:rc.R_N + 3])
+            if (e_r > 0.0) != spec.patch:
+                return None
+            if spec.patch:
+                spec.friction = replace(spec.friction, e_r=e_r)
+                t.pair_f[k, rc.Q_ER] = e_r
         new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
         self._read_dart()
         args = (w.bundle, problem.bundle, S, SP, C)
@@ -1071,8 +1088,41 @@ class ImplicitContactStepper:
         o1 = fm.ContactObject(body_pos[first.body], first.funcs, red1, first.label)
         o2 = fm.ContactObject(body_pos[second.body], second.funcs, red2, second.label)
         delta_prev = last["deflection"] if last is not None else 0.0
-        return fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
+        spec = fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
                            compliance, side, delta_prev)
+        if with_friction:
+            self._add_patch_torsion(spec, last["normal"])
+        return spec
+
+    def _patch_applies(self, spec) -> bool:
+        """Whether a pair's torsion comes from its contact patch: 3D, friction rows, no e_r of its
+        own, two faceted pieces, options.patch_torsion."""
+        return (spec.dim == 3 and spec.with_friction and (spec.patch or spec.friction.e_r == 0.0)
+                and spec.objects[0].faceted and spec.objects[1].faceted and self.options.patch_torsion)
+
+    def _add_patch_torsion(self, spec, normal):
+        """A 3D pair with friction rows whose friction has no e_r of its own resists spinning with
+        the torsion radius of its contact patch at l along normal (patch.py; options.patch_torsion);
+        unchanged when the patch is a point or unknown."""
+        if spec.patch or not self._patch_applies(spec):
+            return
+        e_r = self._patch_radius(spec.objects, normal)
+        if e_r > 0.0:
+            spec.friction, spec.patch = replace(spec.friction, e_r=e_r), True
+
+    def _patch_radius(self, objects, normal) -> float:
+        """The torsion radius of two pieces' patch at l (DART's poses) along normal; 0 unless both
+        pieces have flat faces (a curved piece touches in a point)."""
+        first, second = objects
+        if not (first.faceted and second.faceted):
+            return 0.0
+        band = contact_patch.PATCH_BAND * min(first.piece.length_scale, second.piece.length_scale)
+        bodies = self.scene.bodies
+        R1, p1 = adapter.body_pose(bodies[first.body])
+        R2, p2 = adapter.body_pose(bodies[second.body])
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+        return contact_patch.patch_kernel(first.face, first.face_half, R1, p1, second.face, second.face_half, R2, p2,
+                                          n, band, *contact_patch.workspace(first.face, second.face))
 
     def _orient_intersections(self, oi, oj, flip=False):
         """Which of two intersections is body 1 ([GI] eqs 28-32): the side whose closest point
@@ -1327,6 +1377,7 @@ class _Context:
     bundle: object = None      # the arrays repeat_kernels.step compares and fills (bundles.Context)
     solver: tuple = None       # (options, their solver bundles and buffers: step_solver.solver_bundles)
     sup_y: np.ndarray = None   # the support blocks' warm starts (y, sigma) it is given
+    patches: list = ()         # solved pairs whose torsion radius is their patch's (_patch_applies)
 
 
 class _LazyContacts(Sequence):
@@ -1388,6 +1439,11 @@ class _Object:
         self.fixed_halfspace, self.friction, self.label = fixed_halfspace, friction, label
         self.compliance = compliance
         self.key = label
+        # flat faces (a polytope, a capped cylinder, a plane): its contact patch can be an area
+        face = piece.face_points() if piece.dim == 3 else np.empty((0, 2))
+        self.faceted = face is None or len(face) > 0
+        self.face_half = face is None
+        self.face = np.zeros((1, 3)) if face is None else np.ascontiguousarray(face, float)
         d = piece.dim
         self.local_box = None
         self.offset = 0.0          # distance of its body-frame box centre from the body origin
