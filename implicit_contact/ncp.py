@@ -113,7 +113,8 @@ One iteration:
    (SINGULAR if the Newton system was singular there).
 
 The solver never raises for a failure to converge and never replaces NaN: a non-finite ``F`` or
-``J`` stops it with status NOT_FINITE at the last finite iterate.  ``ValueError`` is raised for
+``J`` stops it with status NOT_FINITE at the last finite iterate (``shorten_nonfinite``: a
+non-finite trial point of a line search instead shortens the step, like a failed Armijo test).  ``ValueError`` is raised for
 malformed input only.  There is no row scaling: the caller scales rows so that ``tol`` means the
 same on every row.  To keep the per-call overhead small (this runs every time step) nothing is
 copied that need not be: ``fun`` and ``jac`` must return arrays they do not modify afterwards.
@@ -166,6 +167,10 @@ class SolverOptions:
         > 0, nominal 1e-4..1.
     fb_lambda: lam of the penalised Fischer-Burmeister function, in (0, 1]; 1 is plain FB;
         nominal 0.8..0.95.
+    shorten_nonfinite: a trial point of a line search where ``fun`` is NaN or inf counts as an
+        infinite merit and the step is halved (the rows are undefined far from the last iterate,
+        not at it); False stops with NOT_FINITE there. A non-finite start or Jacobian always
+        stops.
     """
 
     tol: float = 1e-10
@@ -178,6 +183,7 @@ class SolverOptions:
     descent_power: float = 2.1
     lm_factor: float = 1e-2
     fb_lambda: float = 0.9
+    shorten_nonfinite: bool = False
 
     def __post_init__(self):
         for name in ("tol", "armijo", "min_newton_step", "min_step", "descent_rho",
@@ -190,6 +196,8 @@ class SolverOptions:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise ValueError(f"SolverOptions.{name} must be an integer, got {value!r}")
+        if not isinstance(self.shorten_nonfinite, bool):
+            raise ValueError(f"SolverOptions.shorten_nonfinite must be True or False, got {self.shorten_nonfinite!r}")
         if not self.tol > 0:
             raise ValueError(f"SolverOptions.tol must be positive, got {self.tol}")
         if self.max_iterations < 0:
@@ -274,8 +282,8 @@ NINFO = 7
 F_RESIDUAL, F_MU, F_HGSQ, F_PSI = 0, 1, 2, 3
 NFBUF = 4
 # options (float64) entries
-(O_TOL, O_MAXIT, O_ARMIJO, O_MEMORY, O_MIN_NEWTON, O_MIN_STEP, O_RHO, O_POWER, O_LM, O_LAMBDA) = range(10)
-NOPT = 10
+(O_TOL, O_MAXIT, O_ARMIJO, O_MEMORY, O_MIN_NEWTON, O_MIN_STEP, O_RHO, O_POWER, O_LM, O_LAMBDA, O_SHORTEN) = range(11)
+NOPT = 11
 # status codes (Status below) and why a NOT_FINITE / failed stop happened
 S_CONVERGED, S_MAX_ITERATIONS, S_LINE_SEARCH_FAILED, S_SINGULAR, S_NOT_FINITE = 0, 1, 2, 3, 4
 WHY_START, WHY_TRIAL, WHY_JAC = 1, 2, 3
@@ -288,6 +296,7 @@ def options_array(options: SolverOptions) -> np.ndarray:
     o[O_MEMORY], o[O_MIN_NEWTON], o[O_MIN_STEP] = options.nonmonotone_memory, options.min_newton_step, options.min_step
     o[O_RHO], o[O_POWER], o[O_LM], o[O_LAMBDA] = (options.descent_rho, options.descent_power, options.lm_factor,
                                                   options.fb_lambda)
+    o[O_SHORTEN] = 1.0 if options.shorten_nonfinite else 0.0
     return o
 
 
@@ -388,6 +397,7 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     tol, maxit, armijo = opt[O_TOL], int(opt[O_MAXIT]), opt[O_ARMIJO]
     memory, min_newton, min_step = int(opt[O_MEMORY]), opt[O_MIN_NEWTON], opt[O_MIN_STEP]
     rho, power, lm_factor, lam = opt[O_RHO], opt[O_POWER], opt[O_LM], opt[O_LAMBDA]
+    shorten = opt[O_SHORTEN] != 0.0
     lo0, hi0, lam_in, w_in, lam_out, w_out, gd = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     two = _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out)
     for i in range(n):
@@ -532,6 +542,9 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
                     yield REQ_F
                     info[I_NFEV] += 1
                     if not _finite(Ft):
+                        if shorten:
+                            t *= 0.5
+                            continue
                         info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_TRIAL
                         return
                     psit = _reformulate(xt, Ft, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phit)
@@ -565,6 +578,9 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
                     yield REQ_F
                     info[I_NFEV] += 1
                     if not _finite(Ft):
+                        if shorten:
+                            t *= 0.5
+                            continue
                         info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_TRIAL
                         return
                     psit = _reformulate(xt, Ft, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phit)

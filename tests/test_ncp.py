@@ -299,3 +299,21 @@ def test_malformed_input_raises_value_error(kwargs, match):
 def test_invalid_options_raise_value_error(kwargs):
     with pytest.raises(ValueError, match="SolverOptions"):
         SolverOptions(**kwargs)
+
+
+def test_shorten_nonfinite_halves_a_step_into_undefined_rows_and_converges():
+    """F = x^3 - 1, defined for x < 2 only: from x = 0.1 the Newton step lands at 33.4. By default
+    the solver stops there (NOT_FINITE, the last finite iterate); with shorten_nonfinite the trial
+    point counts as an infinite merit, the step is shortened and the root x = 1 is found."""
+    def fun(x):
+        return np.array([x[0] ** 3 - 1.0]) if x[0] < 2.0 else np.array([np.nan])
+
+    def jac(x):
+        return np.array([[3.0 * x[0] ** 2]])
+
+    stopped = solve_mcp(fun, jac, [0.1], -np.inf, np.inf)
+    assert stopped.status is Status.NOT_FINITE and stopped.x[0] == 0.1
+    shortened = solve_mcp(fun, jac, [0.1], -np.inf, np.inf, SolverOptions(shorten_nonfinite=True))
+    assert shortened.success and shortened.x[0] == pytest.approx(1.0, abs=1e-10)
+    with pytest.raises(ValueError, match="shorten_nonfinite"):
+        SolverOptions(shorten_nonfinite=1)
