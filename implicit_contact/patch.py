@@ -114,10 +114,19 @@ def plane_basis(n):
 def patch_kernel(V1, half1, R1, p1, V2, half2, R2, p2, n, band, A, B, C, out):
     """e_r of the patch of two pieces (face points V (k, 3) in their body frames, or half=True for
     a half-space) at poses (R, p) along the unit normal n from piece 1 into piece 2. out: (kind,
-    area, centroid's plane coordinates) with the first face point of a bounded piece on its face
-    as origin; A, B, C: work arrays (workspace)."""
-    t, o = plane_basis(n)
+    area, centroid's plane coordinates) about the first face point of a bounded piece on its
+    face; A, B, C: work arrays (workspace)."""
     origin = np.zeros(3)
+    m = overlap_polygon(V1, half1, R1, p1, V2, half2, R2, p2, n, band, A, B, C, origin)
+    return moments(C, m, out)
+
+
+@kernel
+def overlap_polygon(V1, half1, R1, p1, V2, half2, R2, p2, n, band, A, B, C, origin):
+    """The overlap of the two pieces' faces (patch_kernel's arguments) into C[:m], counter-
+    clockwise in the coordinates (t, o) of plane_basis(n) about origin (set to the first face
+    point of a bounded piece on its face); returns m."""
+    t, o = plane_basis(n)
     found = False
     na = 0
     nb = 0
@@ -128,16 +137,14 @@ def patch_kernel(V1, half1, R1, p1, V2, half2, R2, p2, n, band, A, B, C, out):
         nb = _face2(V2, R2, p2, n, -1.0, band, t, o, origin, found, B)
         found = True
     if half1:
-        m = hull2(B, nb, C)
-    elif half2:
-        m = hull2(A, na, C)
-    else:
-        na = hull2(A, na, C)
-        A[:na] = C[:na]
-        nb = hull2(B, nb, C)
-        B[:nb] = C[:nb]
-        m = overlap(A, na, B, nb, C)
-    return moments(C, m, out)
+        return hull2(B, nb, C)
+    if half2:
+        return hull2(A, na, C)
+    na = hull2(A, na, C)
+    A[:na] = C[:na]
+    nb = hull2(B, nb, C)
+    B[:nb] = C[:nb]
+    return overlap(A, na, B, nb, C)
 
 
 @kernel

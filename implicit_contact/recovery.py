@@ -17,6 +17,9 @@ recovery objects to is the step's answer; a failed solve that none can restart i
                                       side touching with a face)                        tips_off_a_wedge_and_lands_on_a_face_2d
     adopt_k1             converged    k1 inactive at a1 after the flip (or one          tests/test_rigid3d.py (tipping tests)
                                       intersection): k1 from the static closest points
+    face_landing         failed       faces landing on faces: from p_n = 0 the moment   tests/test_face_contact.py::test_box_
+                                      rows do not see the contact point (a box resting  started_down_flat_with_spin_lands_in_
+                                      flat, started down at 5 m/s with spin)            one_step
     restart_sliding      failed       a re-solve after friction rows were added stalls  tests/test_spheres.py::test_start_from_
                                       in the FB valley of a contact that must slide     rest_at_small_h_needs_no_retry,
                                       (sigma = 0, friction outside the cone)            tests/test_stability_cases.py (10 bodies)
@@ -38,8 +41,10 @@ import numpy as np
 from scipy.optimize import nnls
 
 from . import formulation as fm
+from . import landing
 from . import ncp
 from .rows import checks as rk
+from .rows import contact as rc
 
 MAX_SOLVES = 8      # solves per step (the recoveries below restart at most this often in all)
 RETRY = "retry"
@@ -74,6 +79,7 @@ class Attempt:
     index: int = 0                                 # solves so far
     z0: np.ndarray | None = None
     joints: list = field(default_factory=list)     # per involved skeleton its JointRows or None
+    landings: set = field(default_factory=set)     # face_landing tried without (False) / with friction
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -161,6 +167,52 @@ def adopt_k1(stepper, att: Attempt, problem, result):
     return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"no solution with an active k1 for pairs {stale}")
 
 
+def face_landing(stepper, att: Attempt, problem, result):
+    """A failed solve with faces landing on faces: restart from the landing predictor
+    (landing.py: the patch's vertices in a small LCP give the ECP, the impulse and the
+    velocities; with Coulomb discs if the pair has friction rows), with the closest points at the
+    ECP and their multipliers there; once without and once with friction rows. From p_n = 0 the
+    moment rows do not see the contact point, and Newton wanders (a box resting flat, started
+    downwards at 5 m/s with spin); with friction the impact's friction moment moves the ECP
+    (a tall box landing with spin)."""
+    if result.success:
+        return None
+    pairs = landing.faceted_pairs(problem)
+    friction = any(problem.specs[k].with_friction for k in pairs)
+    if not pairs or friction in att.landings:
+        return None
+    att.landings.add(friction)
+    z0 = att.z0
+    problem._evaluated_at(z0)
+    velocities, predicted = landing.predict(problem, pairs, att.h, friction)
+    if not any(predicted.values()):
+        return None
+    z = z0.copy()
+    for s, v in velocities.items():
+        z[problem.layout.v_index[s]] = v
+    for k, found in predicted.items():
+        if found is None:
+            continue
+        spec, sl = problem.specs[k], problem.layout.pairs[k]
+        poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
+        l1, l2, k1 = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
+        if k1 != spec.k1:
+            continue             # the layout's k1 is fixed for this problem
+        problem.pack_points(z, k, found.x_end, found.x_end)
+        s_p = spec.impulse_scale
+        z[sl.l1s], z[sl.l2s], z[sl.p_n] = l1, l2, found.P / s_p
+        if sl.sigma >= 0:
+            fr = spec.friction
+            z[sl.p_ts] = found.p_to / s_p
+            slip = [fr.e_t * found.slip[0], fr.e_o * found.slip[1]]
+            if sl.p_r >= 0:
+                z[sl.p_r] = found.m_r / (s_p * fr.e_r)
+                slip.append(fr.e_r * found.spin)
+            z[sl.sigma] = float(np.linalg.norm(slip))
+    att.reseeded = z
+    return RETRY
+
+
 def restart_sliding(stepper, att: Attempt, problem, result):
     """A failed solve from a frictionless solution: restart the stuck contacts sliding; if that
     finds none or fails, also the pairs that just got friction rows while slipping in the
@@ -209,7 +261,8 @@ def reseed(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, flip_intersections, adopt_k1, restart_sliding, cold_start, reseed)
+RECOVERIES = (friction_rows, passed_through, flip_intersections, adopt_k1, face_landing, restart_sliding, cold_start,
+              reseed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -347,9 +400,13 @@ def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
         st = old.unpack_pair(x, k)
         vt = st.tangents @ old.relative_velocity(x, k)
         e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
-        sigma = float(np.sqrt(np.sum((e * vt) ** 2)))
+        # with torsion the slip includes the spin about the normal: e_r (n . w_rel)
+        spin = spec.friction.e_r * float(st.normal @ old._rep[k, rc.R_WREL:rc.R_WREL + 3]) if sn.p_r >= 0 else 0.0
+        sigma = float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
         if sigma > 0.0:
             z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
+            if sn.p_r >= 0:
+                z[sn.p_r] = -spec.friction.mu * x[so.p_n] * spin / sigma
         z[sn.sigma] = sigma
     _swap_into(old, x, new, z, swapped)
     return z

@@ -144,7 +144,7 @@ POLICIES = ("raise", "warn", "retry")
 # only by h times a velocity change: near the solution a Newton step of O(1) (in scaled impulse
 # units) can fix a residual of O(h^2). The solver's default descent test (rho = 1e-8) rejects such
 # steps as "too long for the residual"; rho = 1e-24 still caps steps at ~1e6 for a 1e-5 residual.
-DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
+DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24, shorten_nonfinite=True)
 _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
 _TOUCH = recovery.TOUCH   # scaled normal impulse (units of h m g) above which a pair counts as touching
 _FAT_SLACK = 0.25   # fat broadphase boxes: grown by this fraction of a piece's size (plus 3 motion margins)

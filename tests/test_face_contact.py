@@ -124,3 +124,37 @@ def test_square_box_spinning_flat_stops_at_the_patch_torsion_closed_form():
     np.testing.assert_allclose(np.array(omega)[spinning], w0 - moment / izz * t[spinning], rtol=0, atol=1e-9)
     assert np.all(np.abs(np.array(omega)[t >= t_stop]) < 1e-12)
     assert np.linalg.norm(skel.getVelocities()[3:]) < 1e-9   # no drift off the spot
+
+
+# boxes resting flat and started downwards with spin, whose first step failed after 6 solves at
+# every h the retry policy tried before the landing predictor (recovery.face_landing)
+SLAPS = {
+    "wide box": (1.31196e-3, (0.45027, 0.47032, 0.21101), 5.75815, (2.73075, 2.42763, 1.40930), (1.56110, -1.09137, -5.11594)),
+    "tall box": (2.96320e-4, (0.16602, 0.25952, 0.41823), 1.26449, (2.06643, -2.80771, 5.37650), (-0.55961, 0.78929, -2.43458)),
+}
+
+
+@pytest.mark.parametrize("name", list(SLAPS))
+def test_box_started_down_flat_with_spin_lands_in_one_step(name):
+    """A box resting on its face with a downward speed of 2-5 m/s and a spin about a tilted
+    axis: the impact is inelastic and the equivalent contact point moves to where the normal
+    impulse's moment stops the face's rotation, so the box ends its first step flat, at rest
+    along the normal, on the ground, in one solve sequence at the world's h (no substeps), with
+    p_n = m (|v_z| + g h), and it never gains energy."""
+    h, size, m, w, v = SLAPS[name]
+    world = dart_world(h)
+    ground_box(world, mu=0.5)
+    skel, body = _box(world, size, m, 0.5, [0.0, 0.0, size[2] / 2])
+    skel.setVelocities(np.r_[w, v])
+    energy = skel.computeKineticEnergy() + skel.computePotentialEnergy()
+    stepper = ic.ImplicitContactStepper(world)
+    report = stepper.step()
+    assert report.success and report.substeps == 1
+    vel = skel.getVelocities()
+    R = body.getWorldTransform().rotation()
+    assert abs(R[2, 2]) == pytest.approx(1.0, abs=1e-12)          # flat: its face on the ground
+    assert abs(vel[5]) < STATIC and np.linalg.norm(vel[:2]) < STATIC
+    assert skel.getPositions()[5] == pytest.approx(size[2] / 2, abs=STATIC)
+    (c,) = [c for c in report.contacts if c.p_n > 0]
+    assert c.p_n == pytest.approx(m * (abs(v[2]) + G * h), rel=1e-9)
+    assert skel.computeKineticEnergy() + skel.computePotentialEnergy() < energy
