@@ -229,3 +229,55 @@ def faceted_pairs(problem) -> list:
     """Indices of the 3D pairs of a StepProblem whose two pieces have flat faces."""
     return [k for k, spec in enumerate(problem.specs)
             if spec.dim == 3 and len(spec.objects) == 2 and all(getattr(o, "faceted", False) for o in spec.objects)]
+
+
+def separated_face_seed(first, second, now, pred, normal, band):
+    """Closest points to seed a separated pair of faceted pieces whose faces are parallel (within
+    band) at l: the static closest points are then a whole face and the solver returns any of
+    them, while at l+1 the faces tilt and the closest point is the face point that the free
+    step brings nearest the other piece (a cylinder hovering 20 um above the ground on its cap,
+    tilting at 0.2 rad/s: its rim). now, pred: the two pieces' poses (R, p) at l and after the
+    free step; normal from piece 1 into piece 2. Returns (a1, a2) at l, or None when the faces
+    are not parallel (a vertex or an edge is then the unique closest point)."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    faces = []
+    for sign, obj, (R, p), (Rp, pp) in ((1.0, first, now[0], pred[0]), (-1.0, second, now[1], pred[1])):
+        if obj.face_half:
+            faces.append(None)
+            continue
+        X = obj.face @ R.T + p
+        height = sign * (X @ n)
+        on = X[height >= height.max() - band]
+        ahead = sign * ((on - p) @ R @ Rp.T + pp) @ n       # each face point's height after the free step
+        faces.append((on, ahead))
+    if faces[1] is not None and len(faces[1][0]) > 1:
+        on, ahead = faces[1]
+        a2 = on[int(np.argmin(-ahead))]                    # piece 2's point that comes nearest
+        top = _support(first, *now[0], n)
+        return a2 - (a2 @ n - top) * n, a2
+    if faces[0] is not None and len(faces[0][0]) > 1:
+        on, ahead = faces[0]
+        a1 = on[int(np.argmax(ahead))]
+        bottom = -_support(second, *now[1], -n)
+        return a1, a1 + (bottom - a1 @ n) * n
+    return None
+
+
+def vertex_depth(first, second, pose1, pose2) -> float:
+    """How deep the deepest face point of either piece lies inside the other at the given poses
+    (Pose or (R, p)); 0 if none is inside. Face points are surface points (polytope vertices,
+    cylinder rim samples), so a positive depth is an overlap, never an artefact; it is not the
+    penetration depth (crossing edges are not seen). The stepper refuses a solution with a
+    depth beyond its contact tolerance (ImplicitContactStepper._check_solution): Newton on a
+    face landing can converge to a root of the rows whose closest points sit on the far sides
+    of the two pieces, a body 17 cm through the ground reported as touching."""
+    poses = [(P.R, P.p) if hasattr(P, "R") else P for P in (pose1, pose2)]
+    depth = 0.0
+    for (obj, (R, p)), (other, (Ro, po)) in (((first, poses[0]), (second, poses[1])),
+                                              ((second, poses[1]), (first, poses[0]))):
+        if obj.face_half:
+            continue
+        X = (obj.face @ R.T + p - po) @ Ro                 # its face points in the other's frame
+        values = np.max(np.stack([f.value(X) for f in other.piece.functions]), axis=0)
+        depth = max(depth, float(-np.min(values)))
+    return depth

@@ -50,6 +50,7 @@ class PairSpec:
     compliant_side: int = 2    # which body carries the deformed layer
     delta_prev: float = 0.0    # its normal deflection at l
     patch: bool = False        # friction's e_r is the contact patch's at l (patch.py), per step
+    normal_l: np.ndarray | None = None   # the pair's unit normal at l (memory or static seed)
 
 
 @dataclass
