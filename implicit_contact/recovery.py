@@ -92,7 +92,10 @@ def friction_rows(stepper, att: Attempt, problem, result):
     current solution (a transfer)."""
     specs = att.specs
     flags = problem.checks(result.x, att.tol, att.solver_tol, TOUCH)
-    off = [k for k in range(len(specs)) if flags[k] & rk.OFF]
+    # (not off at a failed iterate for the pairs the last re-solve gave rows: that re-solve is
+    # the other recoveries' case, and taking the rows off again cycles on/off until MAX_SOLVES;
+    # a box dropped onto a prism lying on a box)
+    off = [k for k in range(len(specs)) if flags[k] & rk.OFF and (result.success or k not in att.added)]
     on = [k for k in range(len(specs)) if flags[k] & rk.ON] if result.success else []
     if not (on or off):
         return None
