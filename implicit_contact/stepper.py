@@ -148,6 +148,9 @@ POLICIES = ("raise", "warn", "retry")
 DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24, shorten_nonfinite=True)
 _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
 _TOUCH = recovery.TOUCH   # scaled normal impulse (units of h m g) above which a pair counts as touching
+_ENERGY_GAIN = 0.01  # a solution whose impulses add more than this of the bodies' energy scale is refused:
+#                    legitimate gains are O(h^2) (a box pivoting on its edge: 1.4e-3 of the campaign's
+#                    scale at h = 1e-2), spurious roots of stacked bodies added 0.1-13 (comparisons.face_contact)
 _FAT_SLACK = 0.25   # fat broadphase boxes: grown by this fraction of a piece's size (plus 3 motion margins)
 
 
@@ -1256,6 +1259,10 @@ class ImplicitContactStepper:
                 if depth > tol:
                     return (f"pair {c.name_a} / {c.name_b}: a vertex of one lies {depth:.3g} inside the other at "
                             f"the end of the step (tolerance {tol:g}): a spurious root of the closest-point rows")
+        gain, scale = self._contact_work(problem, z, specs)
+        if scale > 0.0 and gain > _ENERGY_GAIN * scale:
+            return (f"the contact impulses add {gain:.3g} J of energy beyond free flight ({gain / scale:.3g} of "
+                    f"the bodies' energy scale {scale:.3g} J): a spurious root, not an inelastic contact")
         for c, spec, f in zip(contacts, specs, flags):
             if f & rk.GAP:
                 return f"pair {c.name_a} / {c.name_b} penetrates by {-c.gap:.3g} (tolerance {tol:g})"
@@ -1264,6 +1271,31 @@ class ImplicitContactStepper:
                 return (f"pair {c.name_a} / {c.name_b} friction {ft:.3g} outside the cone "
                         f"mu p_n = {spec.friction.mu * c.p_n:.3g}")
         return ""
+
+    def _contact_work(self, problem, z, specs):
+        """(the energy the step's impulses add beyond free flight [J], the bodies' energy scale
+        [J]) for a step of free bodies with a pair of faceted pieces ((0, 0) otherwise). With f each skeleton's force at l, semi-implicit Euler's free flight keeps
+        E~ = KE - f.x + h/2 f.v exactly for a constant f (a uniform field), so the impulses add
+        KE(v+) - KE(v_free) - h/2 f.(v+ - v_free). The scale: the kinetic energies at l and in free
+        flight, plus m |g| rho over the pairs' moving pieces (the energy of tipping them)."""
+        gain = scale = 0.0
+        if not any(spec.dim == 3 and spec.objects[0].faceted and spec.objects[1].faceted for spec in specs) or \
+                any(b.kind not in (fm.FREE, fm.FIXED) for b in problem.bodies) or \
+                any(blk.joints is not None for blk in problem.skeletons):
+            return 0.0, 0.0        # (checked where it was needed: free bodies with flat faces)
+        h = problem.h
+        for blk, vidx in zip(problem.skeletons, problem.layout.v_index):
+            v_free = blk.v + h * np.linalg.solve(blk.M, blk.force)
+            v_new = z[vidx]
+            gain += 0.5 * (v_new @ blk.M @ v_new - v_free @ blk.M @ v_free) - 0.5 * h * blk.force @ (v_new - v_free)
+            scale += 0.5 * (blk.v @ blk.M @ blk.v + v_free @ blk.M @ v_free)
+        g = max(self._gravity_norm, 1.0)
+        for spec in specs:
+            for o in spec.objects:
+                b = self.scene.bodies[o.body]
+                if b.kind != adapter.FIXED and o.radius is not None:
+                    scale += self._masses[b.index] * g * o.radius
+        return gain, scale
 
     def _failure(self, problem, result, specs, t0, h) -> StepReport:
         """A failed step's report: the pair whose rows are worst, the status, the likely cause."""
