@@ -1241,9 +1241,10 @@ class ImplicitContactStepper:
                              st.p_r, st.sigma, slip, b1.name, b2.name, st.p_n - p_core, p_core, deflection)
 
     def _check_solution(self, problem, z, contacts, specs) -> str:
-        """'' or why the solution is refused: a pair of faceted pieces with a vertex inside the
-        other (landing.vertex_depth), a pair penetrating beyond the contact tolerance or a
-        friction impulse outside its cone (rows/checks.py's GAP and CONE)."""
+        """'' or why the solution is refused: a contact normal that turned over within the step, a
+        pair of faceted pieces with a vertex inside the other (landing.vertex_depth), impulses
+        adding energy beyond _ENERGY_GAIN (_contact_work), a pair penetrating beyond the contact
+        tolerance or a friction impulse outside its cone (rows/checks.py's GAP and CONE)."""
         tol = self.options.contact_tolerance
         flags = problem.checks(z, tol, self.options.solver.tol, _TOUCH)
         for k, spec in enumerate(specs):
