@@ -143,8 +143,7 @@ def _pair_points(problem, k, h, v_free, skeleton_of):
     a1, a2, n, _, _, _ = problem._pairs_at[k]
     n = n / np.linalg.norm(n)
     kins = [problem.bodies[o.body] for o in (spec.obj1, spec.obj2)]
-    size = min(first.piece.length_scale, second.piece.length_scale)
-    band = contact_patch.PATCH_BAND * size        # and how far the step's rotation tilts a face
+    band = contact_patch.band(first.piece, second.piece)   # and how far the step's rotation tilts a face
     for o, kin in zip((first, second), kins):
         if kin.vindex is not None and o.radius is not None:
             v = v_free[skeleton_of[int(kin.vindex[0])]]
@@ -225,10 +224,14 @@ def pgs(W, b, mu, lam, sweeps, tol):
     return sweeps
 
 
+def faceted_pair(spec) -> bool:
+    """Whether a pair is 3D and both its pieces (the stepper's records) have flat faces."""
+    return spec.dim == 3 and len(spec.objects) == 2 and all(getattr(o, "faceted", False) for o in spec.objects)
+
+
 def faceted_pairs(problem) -> list:
-    """Indices of the 3D pairs of a StepProblem whose two pieces have flat faces."""
-    return [k for k, spec in enumerate(problem.specs)
-            if spec.dim == 3 and len(spec.objects) == 2 and all(getattr(o, "faceted", False) for o in spec.objects)]
+    """Indices of the pairs of a StepProblem that are faceted_pair."""
+    return [k for k, spec in enumerate(problem.specs) if faceted_pair(spec)]
 
 
 def separated_face_seed(first, second, now, pred, normal, band):

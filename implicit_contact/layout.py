@@ -18,6 +18,7 @@ import weakref
 import numpy as np
 
 from .params import Friction
+from .shapes import _least_aligned_axis
 from .support import allocate as allocate_supports
 
 FREE, PLANAR, FIXED = "free", "planar", "fixed"
@@ -137,12 +138,6 @@ def _reduced_point_uncached(obj: ContactObject, kin):
     else:
         T = _tangent_basis(n, _least_aligned_axis(n))[1:].T
     return a0, T
-
-
-def _least_aligned_axis(n):
-    e = np.zeros(len(n))
-    e[int(np.argmin(np.abs(n)))] = 1.0
-    return e
 
 
 def _tangent_basis(n, e):

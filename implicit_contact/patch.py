@@ -60,6 +60,11 @@ def faceted(piece) -> bool:
     return pts is None or len(pts) > 0
 
 
+def band(piece1, piece2) -> float:
+    """The face band of two pieces: PATCH_BAND times the smaller one's size [m]."""
+    return PATCH_BAND * min(piece1.length_scale, piece2.length_scale)
+
+
 def workspace(V1, V2) -> tuple:
     """Work arrays of patch_kernel for pieces with face points V1, V2 (None: a half-space)."""
     m = max(1 if V1 is None else len(V1), 1 if V2 is None else len(V2))

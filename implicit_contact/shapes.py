@@ -199,8 +199,8 @@ def _check_pose(rotation, translation, dim: int) -> tuple[np.ndarray, np.ndarray
     return R, t
 
 
-def _least_aligned(u: np.ndarray) -> np.ndarray:
-    """The coordinate axis least aligned with u."""
+def _least_aligned_axis(u: np.ndarray) -> np.ndarray:
+    """The coordinate axis least aligned with u (layout's tangent bases use it too)."""
     e = np.zeros(len(u))
     e[int(np.argmin(np.abs(u)))] = 1.0
     return e
@@ -1285,7 +1285,7 @@ class Intersection:
         if self._cylinder is not None and self._cylinder[3] and self.dim == 3:
             r, p0, p1, _ = self._cylinder
             u = (p1 - p0) / np.linalg.norm(p1 - p0)
-            e1 = np.cross(u, _least_aligned(u))
+            e1 = np.cross(u, _least_aligned_axis(u))
             e1 /= np.linalg.norm(e1)
             e2 = np.cross(u, e1)
             t = 2.0 * math.pi * np.arange(samples) / samples

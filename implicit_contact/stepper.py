@@ -1103,8 +1103,8 @@ class ImplicitContactStepper:
     def _patch_applies(self, spec) -> bool:
         """Whether a pair's torsion comes from its contact patch: 3D, friction rows, no e_r of its
         own, two faceted pieces, options.patch_torsion."""
-        return (spec.dim == 3 and spec.with_friction and (spec.patch or spec.friction.e_r == 0.0)
-                and spec.objects[0].faceted and spec.objects[1].faceted and self.options.patch_torsion)
+        return (spec.with_friction and (spec.patch or spec.friction.e_r == 0.0) and landing.faceted_pair(spec)
+                and self.options.patch_torsion)
 
     def _add_patch_torsion(self, spec, normal):
         """A 3D pair with friction rows whose friction has no e_r of its own resists spinning with
@@ -1117,18 +1117,15 @@ class ImplicitContactStepper:
             spec.friction, spec.patch = replace(spec.friction, e_r=e_r), True
 
     def _patch_radius(self, objects, normal) -> float:
-        """The torsion radius of two pieces' patch at l (DART's poses) along normal; 0 unless both
-        pieces have flat faces (a curved piece touches in a point)."""
+        """The torsion radius of two faceted pieces' patch at l (DART's poses) along normal."""
         first, second = objects
-        if not (first.faceted and second.faceted):
-            return 0.0
-        band = contact_patch.PATCH_BAND * min(first.piece.length_scale, second.piece.length_scale)
         bodies = self.scene.bodies
         R1, p1 = adapter.body_pose(bodies[first.body])
         R2, p2 = adapter.body_pose(bodies[second.body])
         n = np.asarray(normal, float) / np.linalg.norm(normal)
         return contact_patch.patch_kernel(first.face, first.face_half, R1, p1, second.face, second.face_half, R2, p2,
-                                          n, band, *contact_patch.workspace(first.face, second.face))
+                                          n, contact_patch.band(first.piece, second.piece),
+                                          *contact_patch.workspace(first.face, second.face))
 
     def _orient_intersections(self, oi, oj, flip=False):
         """Which of two intersections is body 1 ([GI] eqs 28-32): the side whose closest point
@@ -1208,12 +1205,11 @@ class ImplicitContactStepper:
         P1, P2 = (problem.bodies[o.body].pose(np.zeros(problem.bodies[o.body].ndof)) for o in (spec.obj1, spec.obj2))
         if res.distance <= self.options.contact_tolerance:
             a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal, self.options.contact_tolerance)
-        elif d == 3 and first.faceted and second.faceted:
-            band = contact_patch.PATCH_BAND * min(first.piece.length_scale, second.piece.length_scale)
+        elif landing.faceted_pair(spec):
             seed = landing.separated_face_seed(first, second, (poses_now[first.body], poses_now[second.body]),
                                                (state.poses_pred.get(first.body, poses_now[first.body]),
                                                 state.poses_pred.get(second.body, poses_now[second.body])),
-                                               normal, band)
+                                               normal, contact_patch.band(first.piece, second.piece))
             if seed is not None:
                 a1, a2 = seed
         l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
@@ -1254,7 +1250,7 @@ class ImplicitContactStepper:
                 # 8.6 m/s through a 0.1 m ground box at h = 0.017, held against its underside)
                 return (f"pair {c.name_a} / {c.name_b}: the contact normal turned over within the step "
                         f"(n . n_l = {float(c.normal @ spec.normal_l):.3g}): one body went through the other")
-            if spec.dim == 3 and spec.objects[0].faceted and spec.objects[1].faceted:
+            if landing.faceted_pair(spec):
                 poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
                 depth = landing.vertex_depth(*spec.objects, *poses)
                 if depth > tol:
@@ -1275,12 +1271,13 @@ class ImplicitContactStepper:
 
     def _contact_work(self, problem, z, specs):
         """(the energy the step's impulses add beyond free flight [J], the bodies' energy scale
-        [J]) for a step of free bodies with a pair of faceted pieces ((0, 0) otherwise). With f each skeleton's force at l, semi-implicit Euler's free flight keeps
-        E~ = KE - f.x + h/2 f.v exactly for a constant f (a uniform field), so the impulses add
+        [J]) for a step of free bodies with a pair of faceted pieces ((0, 0) otherwise). With f
+        each skeleton's force at l, semi-implicit Euler's free flight keeps E~ = KE - f.x + h/2 f.v
+        exactly for a constant f (a uniform field), so the impulses add
         KE(v+) - KE(v_free) - h/2 f.(v+ - v_free). The scale: the kinetic energies at l and in free
         flight, plus m |g| rho over the pairs' moving pieces (the energy of tipping them)."""
         gain = scale = 0.0
-        if not any(spec.dim == 3 and spec.objects[0].faceted and spec.objects[1].faceted for spec in specs) or \
+        if not any(landing.faceted_pair(spec) for spec in specs) or \
                 any(b.kind not in (fm.FREE, fm.FIXED) for b in problem.bodies) or \
                 any(blk.joints is not None for blk in problem.skeletons):
             return 0.0, 0.0        # (checked where it was needed: free bodies with flat faces)
@@ -1500,7 +1497,7 @@ class _Object:
         self.key = label
         # flat faces (a polytope, a capped cylinder, a plane): its contact patch can be an area
         face = piece.face_points() if piece.dim == 3 else np.empty((0, 2))
-        self.faceted = face is None or len(face) > 0
+        self.faceted = piece.dim == 3 and contact_patch.faceted(piece)
         self.face_half = face is None
         self.face = np.zeros((1, 3)) if face is None else np.ascontiguousarray(face, float)
         d = piece.dim
