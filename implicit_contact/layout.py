@@ -52,6 +52,8 @@ class PairSpec:
     delta_prev: float = 0.0    # its normal deflection at l
     patch: bool = False        # friction's e_r is the contact patch's at l (patch.py), per step
     normal_l: np.ndarray | None = None   # the pair's unit normal at l (memory or static seed)
+    start_frame: np.ndarray | None = None  # order 2's first stage (rattle.py): n, t, o and the
+    #                                        levers a1 - p1, a2 - p2 at l (15,), else None
 
 
 @dataclass

@@ -81,8 +81,8 @@ from .. import shape_kernels as sk
 # pair_i columns
 (P_DIM, P_B1, P_B2, P_F1, P_M1, P_F2, P_M2, P_RED1, P_RED2, P_K1, P_FR, P_TORS, P_COMP, P_SIDE,
  P_C0, P_NBLK, P_A1, P_NA1, P_A2, P_NA2, P_L1, P_L2, P_PN, P_PT, P_PR, P_SIG, P_DBAR, P_DN, P_PNR,
- P_KV1, P_KV2) = range(31)
-NPI = 31
+ P_KV1, P_KV2, P_SPLIT) = range(32)
+NPI = 32
 # pair_f columns
 (Q_SP, Q_MU, Q_ET, Q_EO, Q_ER) = range(5)
 Q_AXIS = 5        # 3
@@ -91,7 +91,10 @@ Q_T1 = 11         # 9 (3 x 3 row-major, the first na1 columns used)
 Q_A02 = 20        # 3
 Q_T2 = 23         # 9
 Q_K, Q_C, Q_DMAX, Q_DPREV, Q_H = 32, 33, 34, 35, 36
-NPF = 37
+# the start-of-step contact frame of a split step's first stage (P_SPLIT, rattle.py): n, t, o at l
+# and the levers a_b - p_b at l of body 1 and body 2
+Q_N0, Q_T0, Q_O0, Q_R10, Q_R20 = 37, 40, 43, 46, 49
+NPF = 52
 # report columns
 R_A1, R_A2, R_N, R_T, R_O = 0, 3, 6, 9, 12
 R_GAP = 15
@@ -211,6 +214,20 @@ def _fold_row(Drow, out, sign, nblk, x0, ca1, na1, T1, ca2, na2, T2, Tb1, k1, Tb
 
 
 @kernel
+def _add_frozen_slip(D, row, c, e0, r10, r20, TW1, TW2, tmp):
+    """D[row] += c d(e0 . v_rel0): the slip along e0 of the material points at the levers r_b0
+    (fixed), d = sum_b s_b (e0 . dv_o + (r_b0 x e0) . domega)."""
+    _cross(r20, e0, tmp)
+    for q in range(3):
+        D[row, TW2 + V_VO + q] += c * e0[q]
+        D[row, TW2 + V_W + q] += c * tmp[q]
+    _cross(r10, e0, tmp)
+    for q in range(3):
+        D[row, TW1 + V_VO + q] -= c * e0[q]
+        D[row, TW1 + V_W + q] -= c * tmp[q]
+
+
+@kernel
 def _tangent_derivatives(n, e, en, t, nu, o, Dt, Do):
     """dt/dn and do/dn for t = u / |u|, u = e - (e.n) n, o = n x t (nu = |u|, en = e.n):
     du/dn = -n e^T - (e.n) I, dt/dn = Q du/dn with Q = (I - t t^T) / nu, do/dn = -[t]x + [n]x dt/dn.
@@ -257,7 +274,7 @@ def _take(ws, at, n):
 def workspace_size(m1: int, m2: int, nblk: int) -> int:
     """Floats of the workspace of one pair's _pair_rows (an upper bound of what it takes)."""
     nv = nblk + NV_EXTRA
-    return 64 * 9 + 24 * (m1 + m2) + nv * (nblk + 12 * 3 + 1)
+    return 65 * 9 + 24 * (m1 + m2) + nv * (nblk + 12 * 3 + 1)
 
 
 @kernel
@@ -437,6 +454,25 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     vt0 = t[0] * vrel[0] + t[1] * vrel[1] + t[2] * vrel[2]
     vt1 = o[0] * vrel[0] + o[1] * vrel[1] + o[2] * vrel[2]
     wn = n[0] * wrel[0] + n[1] * wrel[1] + n[2] * wrel[2]
+    split = pi[P_SPLIT] != 0
+    n0 = pf[Q_N0:Q_N0 + 3]
+    t0 = pf[Q_T0:Q_T0 + 3]
+    o0 = pf[Q_O0:Q_O0 + 3]
+    r10 = pf[Q_R10:Q_R10 + 3]
+    r20 = pf[Q_R20:Q_R20 + 3]
+    if split:
+        # the first stage of a split step (rattle.py, eq R4): the slip through the mean of the
+        # rows at l and at l+1, (W(q^l) + W(q^{l+1}))^T u / 2
+        vrel0, at = _take(ws, at, 3)
+        _cross(w2, r20, tmp)
+        for q in range(3):
+            vrel0[q] = vo2[q] + tmp[q]
+        _cross(w1, r10, tmp)
+        for q in range(3):
+            vrel0[q] -= vo1[q] + tmp[q]
+        vt0 = 0.5 * (vt0 + t0[0] * vrel0[0] + t0[1] * vrel0[1] + t0[2] * vrel0[2])
+        vt1 = 0.5 * (vt1 + o0[0] * vrel0[0] + o0[1] * vrel0[1] + o0[2] * vrel0[2])
+        wn = 0.5 * (wn + n0[0] * wrel[0] + n0[1] * wrel[1] + n0[2] * wrel[2])
     if fr:
         sigma = z[c0 + csig]
         et2, eo2 = pf[Q_ET] ** 2, pf[Q_EO] ** 2
@@ -498,11 +534,20 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
             FL[own + row] = pf[Q_DMAX] - dn_                           # (55)
             row += 1
 
-    # -- generalized impulses: F[v_b] -= s_b (A_v^T P + A_w^T (r_b x P + tau))
+    # -- generalized impulses: F[v_b] -= s_b (A_v^T P + A_w^T (r_b x P + tau)); a split step's
+    #    first stage applies them in the frame at l (rattle.py, eq R2): P, tau along n0, t0, o0
+    #    at the levers r_b0
     M1, at = _take(ws, at, 3)
     M2, at = _take(ws, at, 3)
-    _cross(r11, P, M1)
-    _cross(r22, P, M2)
+    if split:
+        for q in range(3):
+            P[q] = s_p * (p_n * n0[q] + pt0 * t0[q] + pt1 * o0[q])
+            tau[q] = s_p * e_r * p_r * n0[q]
+        _cross(r10, P, M1)
+        _cross(r20, P, M2)
+    else:
+        _cross(r11, P, M1)
+        _cross(r22, P, M2)
     for q in range(3):
         M1[q] += tau[q]
         M2[q] += tau[q]
@@ -614,6 +659,15 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     dtau_flat, at = _take(ws, at, 3 * nv)
     dtau = dtau_flat.reshape((3, nv))
     for q in range(3):
+        if split:                                  # a constant frame: P and tau linear in the impulses
+            dP[q, cpn] += s_p * n0[q]
+            if fr:
+                dP[q, cpt] += s_p * t0[q]
+                if d == 3:
+                    dP[q, cpt + 1] += s_p * o0[q]
+            if tors:
+                dtau[q, cpr] += s_p * e_r * n0[q]
+            continue
         dP[q, cpn] += s_p * n[q]
         if fr:
             dP[q, cpt] += s_p * t[q]
@@ -632,13 +686,18 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         _add_dvpoint(dvrel, 1.0, w2, r22, A2v, TW2, S, Sr)
         _add_dvpoint(dvrel, -1.0, w1, r11, A1v, TW1, S, Sr)
         et2, eo2 = pf[Q_ET] ** 2, pf[Q_EO] ** 2
+        # a split step's first stage: half the slip at l+1 and half through the frame at l,
+        # d(t0 . v_rel0) = sum_b s_b (t0 . dv_o + (r_b0 x t0) . domega)
+        half = 0.5 if split else 1.0
         ca = et2 * mu
         D[row, cpn] += ca * vt0
         D[row, cpt] += sigma
         D[row, csig] += pt0
         for c in range(nv):
-            D[row, c] += ca * p_n * (vrel[0] * dt[0, c] + vrel[1] * dt[1, c] + vrel[2] * dt[2, c]
-                                     + t[0] * dvrel[0, c] + t[1] * dvrel[1, c] + t[2] * dvrel[2, c])
+            D[row, c] += half * ca * p_n * (vrel[0] * dt[0, c] + vrel[1] * dt[1, c] + vrel[2] * dt[2, c]
+                                            + t[0] * dvrel[0, c] + t[1] * dvrel[1, c] + t[2] * dvrel[2, c])
+        if split:
+            _add_frozen_slip(D, row, 0.5 * ca * p_n, t0, r10, r20, TW1, TW2, tmp)
         row += 1
         if d == 3:
             ca = eo2 * mu
@@ -646,8 +705,10 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
             D[row, cpt + 1] += sigma
             D[row, csig] += pt1
             for c in range(nv):
-                D[row, c] += ca * p_n * (vrel[0] * do[0, c] + vrel[1] * do[1, c] + vrel[2] * do[2, c]
-                                         + o[0] * dvrel[0, c] + o[1] * dvrel[1, c] + o[2] * dvrel[2, c])
+                D[row, c] += half * ca * p_n * (vrel[0] * do[0, c] + vrel[1] * do[1, c] + vrel[2] * do[2, c]
+                                                + o[0] * dvrel[0, c] + o[1] * dvrel[1, c] + o[2] * dvrel[2, c])
+            if split:
+                _add_frozen_slip(D, row, 0.5 * ca * p_n, o0, r10, r20, TW1, TW2, tmp)
             row += 1
         if tors:
             cr = e_r * mu
@@ -655,10 +716,11 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
             D[row, cpr] += sigma
             D[row, csig] += p_r
             for c in range(nv):
-                D[row, c] += cr * p_n * (wrel[0] * dn[0, c] + wrel[1] * dn[1, c] + wrel[2] * dn[2, c])
+                D[row, c] += half * cr * p_n * (wrel[0] * dn[0, c] + wrel[1] * dn[1, c] + wrel[2] * dn[2, c])
             for q in range(3):
-                D[row, TW2 + V_W + q] += cr * p_n * n[q]
-                D[row, TW1 + V_W + q] -= cr * p_n * n[q]
+                nq = half * n[q] + (0.5 * n0[q] if split else 0.0)
+                D[row, TW2 + V_W + q] += cr * p_n * nq
+                D[row, TW1 + V_W + q] -= cr * p_n * nq
             row += 1
         D[row, cpn] += 2.0 * mu * mu * p_n                             # cone
         D[row, cpt] -= 2.0 * pt0 / pf[Q_ET] ** 2
@@ -713,13 +775,18 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
                 kv, Tb, rb, Av, TW, sgn, first = kv2, Tb2, r22, A2v, TW2, 1.0, kv1
             if kv == 0:
                 continue
-            _skew(rb, Sr)
+            if split:                              # the constant lever at l
+                _skew(r10 if body == 0 else r20, Sr)
+            else:
+                _skew(rb, Sr)
             for q in range(3):
                 for c in range(nv):
                     acc = dtau[q, c]
                     for m in range(3):
                         acc += Sr[q, m] * dP[m, c]
                     dM[q, c] = acc
+                if split:
+                    continue
                 for m in range(3):
                     dM[q, Av + m] -= S[q, m]
                     dM[q, TW + V_P + m] += S[q, m]
