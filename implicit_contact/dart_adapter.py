@@ -605,6 +605,27 @@ def read_dynamics(rec: SkeletonRecord, M_out, cg_out) -> None:
     cg_out[:] = skel.getCoriolisAndGravityForces()
 
 
+def coriolis_jacobian(rec: SkeletonRecord, v) -> np.ndarray:
+    """dc/dv (k, k) of DART's Coriolis forces c(q, v) at the skeleton's q and the velocities v,
+    by central differences: c is quadratic in v, so they are exact up to round-off. Leaves the
+    skeleton's velocities at v."""
+    skel = rec.skeleton
+    v = np.array(v, float)
+    k = len(v)
+    out = np.empty((k, k))
+    eps = 1.0
+    for i in range(k):
+        e = v.copy()
+        e[i] += eps
+        skel.setVelocities(e)
+        cp = np.array(skel.getCoriolisForces())
+        e[i] -= 2.0 * eps
+        skel.setVelocities(e)
+        out[:, i] = (cp - np.array(skel.getCoriolisForces())) / (2.0 * eps)
+    skel.setVelocities(v)
+    return out
+
+
 def read_body(body: BodyRecord, T_out, J_out=None) -> None:
     """A body's world transform at l (4 x 4; and, with J_out (6, k), DART's world Jacobian of
     its origin)."""

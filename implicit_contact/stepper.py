@@ -44,6 +44,7 @@ from . import joint_rows
 from . import landing
 from . import ncp
 from . import patch as contact_patch
+from . import rattle
 from . import recovery
 from . import shapes as shp
 from . import repeat_kernels as rk_repeat
@@ -74,6 +75,9 @@ class StepperOptions:
     patch_torsion: a touching pair whose friction has no e_r of its own resists spinning with
         its contact patch's torsion radius (patch.py: a box on its face, a cylinder on its cap or
         side); False leaves such pairs without torsion rows.
+    order: 1 is [GI] as printed (first order); 2 the split step of rattle.py (second order in
+        free flight and persistent contact; two solves per step; rigid pairs and joints without
+        friction, limits, mimic relations or springs only, so far).
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
@@ -82,6 +86,7 @@ class StepperOptions:
     check_penetration_at_start: bool = True
     skip_far_pairs: bool = True
     patch_torsion: bool = True
+    order: int = 1
 
     def __post_init__(self):
         if not (self.contact_tolerance > 0 and math.isfinite(self.contact_tolerance)):
@@ -90,6 +95,8 @@ class StepperOptions:
             raise ValueError(f"max_halvings must be an integer in 0..12, got {self.max_halvings}")
         if not (isinstance(self.retry_iterations_factor, int) and self.retry_iterations_factor >= 1):
             raise ValueError(f"retry_iterations_factor must be an integer >= 1, got {self.retry_iterations_factor}")
+        if self.order not in (1, 2):
+            raise ValueError(f"order must be 1 ([GI]) or 2 (rattle.py), got {self.order!r}")
 
 
 @dataclass(frozen=True)
@@ -223,6 +230,8 @@ class ImplicitContactStepper:
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._retrying = False
         self._check_state_finite()
+        if self.options.order == 2:
+            self._check_order2()
         if self.options.check_penetration_at_start:
             self._check_initial_overlap()
 
@@ -453,6 +462,8 @@ class ImplicitContactStepper:
 
     def _one_step(self, h, keep=frozenset()) -> StepReport:
         """One step of h; keep: candidate pairs the far-pair filter must not leave out."""
+        if self.options.order == 2:
+            return self._split_step(h, keep)
         t0 = self.world.getTime()
         if not keep:
             report = self._repeat_step(h, t0)
@@ -501,6 +512,182 @@ class ImplicitContactStepper:
             self._ctx = self._context(h, ordered, pairs, problem, att)
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, problem.layout.n)
+
+    # -- order 2: the split step (rattle.py) ---------------------------------------------------------
+    def _check_order2(self):
+        """Refuse at construction what the split step does not model yet, with what to do."""
+        why = []
+        if any(o.compliance is not None for o in self._objects):
+            why.append("quasi-rigid layers")
+        if self._joint_models:
+            why.append("Coulomb joint friction, enforced position limits or mimic joints")
+        if any(rec.spring_damper is not None for rec in self.scene.skeletons):
+            why.append("joint springs or dampers")
+        if why:
+            raise ValueError("StepperOptions(order=2) does not support " + " or ".join(why) +
+                             " yet; use order=1 ([GI]'s step) for this world")
+
+    def _split_step(self, h, keep=frozenset()) -> StepReport:
+        """One step of order 2 (rattle.py): stage 1, [GI]'s MCP for the half-step velocity u with
+        the impulse R1 in the frame at l (R1)-(R4); the positions q+ = q (+) h u written to DART;
+        stage 2 at the fixed geometry q+, the end velocity and total impulse (R5)-(R8)."""
+        t0 = self.world.getTime()
+        w = self._world
+        state = self._read(h)
+        self._stage1_tables(h)
+        candidates = self._candidates(state, keep)
+        pairs = sorted(candidates)
+        u = [w.V[o:o + k] + np.linalg.solve(w.MB1[mo:mo + k * k].reshape(k, k), h * w.FB1[o:o + k]) if k else w.V[o:o]
+             for o, mo, k in zip(w.sk_voff, w.sk_moff, w.sk_nv)]
+        problem = att = result = None
+        contacts = ()
+        iterations, residual = 0, 0.0
+        if pairs:
+            att = self._specs(pairs, state, {})
+            for spec in att.specs:
+                spec.start_frame = self._start_frame(spec, state)
+            problem, result = self._solve_step(att, state)
+            if not result.success:
+                return self._failure(problem, result, att.specs, t0, h)
+            contacts, new_last = self._solution(problem, result.x, att.specs)
+            bad = self._check_solution(problem, result.x, contacts, att.specs, energy=False)
+            if bad:
+                return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
+                                  t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
+            for s in att.involved:
+                u[s] = result.x[problem.layout.v_index[att.sk_pos[s]]]
+            iterations, residual = result.iterations, result.residual
+        violated = self._uncovered(candidates, u, self._world_vector(u), state)
+        if violated:
+            # a pair the broadphase did not see could touch at the solved velocities: again with it
+            return self._split_step(h, keep | violated)
+        v_l = w.V.copy()
+        # q+ = q (+) h u (R2), and DART's M and forces at (q+, u) for (R5)
+        w.raw_valid = False
+        for s, rec in enumerate(self.scene.skeletons):
+            if w.sk_nv[s]:
+                rec.skeleton.setVelocities(u[s])
+                rec.skeleton.integratePositions(h)
+        for rec, _, M, cg in w.skeleton_views:
+            adapter.read_dynamics(rec, M, cg)
+        hf = 0.5 * h * (w.TAU + w.FEXT - w.CG)
+        v_next = [u[s] + np.linalg.solve(w.MB[mo:mo + k * k].reshape(k, k), hf[o:o + k]) if k else u[s]
+                  for s, (o, mo, k) in enumerate(zip(w.sk_voff, w.sk_moff, w.sk_nv))]
+        if problem is not None:
+            stage2, closed = self._stage2(problem, result.x, att, u, hf)
+            if closed:
+                res2 = stage2.solve(self.options.solver)
+                iterations += res2.iterations
+                residual = max(residual, res2.residual)
+                if not res2.success:
+                    return StepReport(False, iterations, res2.residual, res2.status.name, tuple(contacts), t0, 1,
+                                      f"the second stage of the split step failed at t = {t0:.6g} s "
+                                      f"({res2.status.name}, residual {res2.residual:.3g}, h = {h:g}); a smaller h "
+                                      "or on_failure='retry' may get through.", problem.layout.n)
+                for k, s in enumerate(att.involved):
+                    o = sum(len(u[x]) for x in att.involved[:k])
+                    v_next[s] = res2.x[o:o + len(u[s])]
+                contacts = self._split_contacts(contacts, closed, stage2, res2.x)
+            self._last = new_last
+        else:
+            self._last = PairMemory()
+        for s, rec in enumerate(self.scene.skeletons):
+            k, o = w.sk_nv[s], w.sk_voff[s]
+            if k:
+                rec.skeleton.setVelocities(v_next[s])
+                rec.skeleton.setAccelerations((v_next[s] - v_l[o:o + k]) / h)
+        self._last_support, self._far, self._ctx = {}, {}, None
+        return StepReport(True, iterations, residual, "CONVERGED" if problem is not None else "NO_CONTACT",
+                          tuple(contacts), t0 + h, 1, "", 0 if problem is None else problem.layout.n)
+
+    def _stage1_tables(self, h):
+        """Stage 1's skeleton tables (rattle.py, eq R1): MB1 = M + h/2 dc/dv at (q, v), FB1 = f / 2
+        (the rows read h FB1 = h/2 f)."""
+        w = self._world
+        for s, rec in enumerate(self.scene.skeletons):
+            k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
+            if not k:
+                continue
+            C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
+            w.MB1[mo:mo + k * k] = (w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C).ravel()
+            w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
+
+    def _start_frame(self, spec, state) -> np.ndarray:
+        """A pair's frame at l (rattle.start_frame): its closest points at l from the last step's
+        solution when it had the pair the same way round, else from a static solve at l."""
+        first, second = spec.objects
+        d = spec.dim
+        poses = state.poses_now
+        res = _closest_seed(first.piece, _pose_dim(poses[first.body], d), second.piece, _pose_dim(poses[second.body], d))
+        a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+        normal = np.asarray(res.normal, float)
+        k = self._last.keys.get(spec.key)
+        if k is not None:
+            rep = self._last.rep[k]
+            n_mem = rep[rc.R_N:rc.R_N + 3]
+            if float(n_mem[:d] @ normal[:d]) > 0.0:
+                a1, a2, normal = rep[rc.R_A1:rc.R_A1 + d], rep[rc.R_A2:rc.R_A2 + d], n_mem[:d]
+        if spec.tangent_axis is None and d == 3:
+            spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
+        pad = lambda x: np.r_[x, np.zeros(3 - len(x))]
+        return rattle.start_frame(pad(a1), pad(a2), pad(normal), spec.tangent_axis, poses[first.body][1],
+                                  poses[second.body][1], d)
+
+    def _stage2(self, problem, z, att, u, hf):
+        """(rattle.Stage2 of the pairs closed at q+, their indices): DART's M at q+, the bodies'
+        Jacobians and origins at q+, the pairs' frames at q+ and stage 1's impulses."""
+        w = self._world
+        tol = self.options.contact_tolerance
+        problem._evaluated_at(z)
+        rep = problem._rep
+        closed, cps, bodies, index = [], [], [], {}
+        for k, spec in enumerate(att.specs):
+            sl = problem.layout.pairs[k]
+            p_n = float(z[sl.p_n])
+            if not (rep[k, rc.R_GAP] <= tol or p_n > 0.0):
+                continue
+            ends = []
+            for obj in (spec.obj1, spec.obj2):
+                b = att.body_ids[obj.body]
+                rec = self.scene.bodies[b]
+                if rec.kind == adapter.FIXED:
+                    ends.append(-1)
+                    continue
+                if b not in index:
+                    s = rec.skeleton_index
+                    col = sum(len(u[x]) for x in att.involved[:att.sk_pos[s]])
+                    T = rec.body_node.getTransform().matrix()
+                    J = np.array(rec.skeleton.getWorldJacobian(rec.body_node, np.zeros(3)))
+                    index[b] = len(bodies)
+                    bodies.append((col, J, T[:3, 3].copy()))
+                ends.append(index[b])
+            R1 = np.zeros(4)
+            R1[0] = p_n
+            R1[1:1 + len(sl.p_t)] = z[sl.p_t]
+            if sl.p_r >= 0:
+                R1[3] = z[sl.p_r]
+            fr = spec.friction if spec.with_friction else Friction(0.0)
+            cps.append(rattle.ClosedPair(tuple(ends), (rep[k, rc.R_A1:rc.R_A1 + 3].copy(), rep[k, rc.R_A2:rc.R_A2 + 3].copy()),
+                                         rep[k, rc.R_N:rc.R_N + 3].copy(), rep[k, rc.R_T:rc.R_T + 3].copy(),
+                                         rep[k, rc.R_O:rc.R_O + 3].copy(), spec.dim, fr.mu if sl.sigma >= 0 else 0.0,
+                                         fr.e_t, fr.e_o, fr.e_r if sl.p_r >= 0 else 0.0, spec.impulse_scale, R1,
+                                         float(z[sl.sigma]) if sl.sigma >= 0 else 0.0))
+            closed.append(k)
+        skeletons = []
+        for s in att.involved:
+            k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
+            skeletons.append((w.MB[mo:mo + k * k].reshape(k, k).copy(), u[s], hf[o:o + k]))
+        return rattle.Stage2(skeletons, bodies, cps), closed
+
+    def _split_contacts(self, contacts, closed, stage2, x):
+        """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2)."""
+        contacts = list(contacts)
+        v = x[:stage2.nv]
+        for k, cp, G, P in zip(closed, stage2.pairs, stage2.G, stage2.impulses(x)):
+            slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
+            contacts[k] = replace(contacts[k], p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2],
+                                  p_r=cp.s_p * cp.e_r * P[3], slip=slip, p_core=cp.s_p * P[0])
+        return tuple(contacts)
 
     # -- a step that repeats the last one's structure ---------------------------------------------
     def _context(self, h, candidates, pairs, problem, att) -> "_Context":
@@ -1034,9 +1221,11 @@ class ImplicitContactStepper:
                                        jr)
                       for s, jr in zip(involved, joints)]
             ids = np.asarray(body_ids, np.int64)
+            # order 2's stage 1 reads its own skeleton tables (rattle.py, eq R1; _stage1_tables)
+            MB, FB = (w.MB1, w.FB1) if self.options.order == 2 else (w.MB, w.FB)
             source = (ids, R_src, p_src, th_src, w.JB, w.bd_joff[ids],
                       np.array([kin.h for kin in kins]), np.asarray(involved, np.int64), w.sk_voff, w.sk_moff,
-                      w.V, w.MB, w.FB)
+                      w.V, MB, FB)
             problem = fm.StepProblem(h, blocks, kins, specs, layout, supports, source=source)
             cached = self._problems[key] = (problem, kins, blocks, source)
             return problem
@@ -1236,7 +1425,7 @@ class ImplicitContactStepper:
         return ContactReport(b1.body_node, b2.body_node, st.a1, st.a2, st.normal, st.gap, st.p_n, pt, po,
                              st.p_r, st.sigma, slip, b1.name, b2.name, st.p_n - p_core, p_core, deflection)
 
-    def _check_solution(self, problem, z, contacts, specs) -> str:
+    def _check_solution(self, problem, z, contacts, specs, energy=True) -> str:
         """'' or why the solution is refused: a contact normal that turned over within the step, a
         pair of faceted pieces with a vertex inside the other (landing.vertex_depth), impulses
         adding energy beyond _ENERGY_GAIN (_contact_work), a pair penetrating beyond the contact
@@ -1256,7 +1445,8 @@ class ImplicitContactStepper:
                 if depth > tol:
                     return (f"pair {c.name_a} / {c.name_b}: a vertex of one lies {depth:.3g} inside the other at "
                             f"the end of the step (tolerance {tol:g}): a spurious root of the closest-point rows")
-        gain, scale = self._contact_work(problem, z, specs)
+        # (energy: the test is against [GI]'s free-flight step; order 2's stage 1 is half of one)
+        gain, scale = self._contact_work(problem, z, specs) if energy else (0.0, 0.0)
         if scale > 0.0 and gain > _ENERGY_GAIN * scale:
             return (f"the contact impulses add {gain:.3g} J of energy beyond free flight ({gain / scale:.3g} of "
                     f"the bodies' energy scale {scale:.3g} J): a spurious root, not an inelastic contact")
@@ -1389,6 +1579,7 @@ class _World:
         self.all_skeletons = None   # the world's skeletons (_begin)
         self.world_skeletons = None  # the world's other skeletons with dofs (for snapshots)
         self.MB = np.zeros(max(nM, 1))
+        self.MB1, self.FB1 = np.zeros(max(nM, 1)), np.zeros(nvw)   # order 2's stage 1 (_stage1_tables)
         self.JB = np.zeros(max(at, 1))
         self.R_given, self.p_given = np.zeros((nb, 3, 3)), np.zeros((nb, 3))
         self.TG = np.zeros((nb, 4, 4))

@@ -1,0 +1,166 @@
+"""Observed orders in h of order 1 ([GI]) and order 2 (implicit_contact/rattle.py).
+
+Each case is one smooth phase with an exact reference, measured at h = 4e-3, 2e-3, 1e-3, 5e-4:
+
+* tumble:   a free asymmetric top without gravity (inertia 0.1, 0.2, 0.35 kg m^2, spun near its
+            unstable middle axis); error of the body-frame angular velocity after 1 s against
+            Euler's equations (DOP853, rtol 1e-13).
+* pendulum: a revolute pendulum (1 kg at 0.5 m) released at 1 rad; largest energy error in 1 s.
+* rocking:  scenes/ellipsoid_rocking.py (rolling without slip); largest tilt error in 1 s against
+            its exact 1-dof reference, and the rocking energy's largest relative error.
+* slide:    a ball (r = 0.1 m) sliding without spin at 2 m/s on mu = 0.3; error of its position
+            at 0.15 s, inside the sliding phase (x = v0 t - mu g t^2 / 2).
+
+The order printed between two step sizes is log2(e(h) / e(h/2)). The figure goes to
+comparisons/out/convergence.png.
+
+Run: python -m comparisons.convergence [--quick]   (--quick: h = 4e-3, 2e-3 only)
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+import time
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+import implicit_contact as ic
+from implicit_contact.testing import dart_world, ground_box, revolute_pendulum
+
+STEPS = (4e-3, 2e-3, 1e-3, 5e-4)
+OUT = Path(__file__).resolve().parent / "out"
+
+INERTIA = np.array([0.1, 0.2, 0.35])    # [kg m^2], the top's principal moments
+OMEGA0 = np.array([0.3, 4.0, 0.5])      # [rad/s] body frame, near the unstable middle axis
+BALL_R, BALL_MU, BALL_V0 = 0.1, 0.3, 2.0
+G = 9.81
+
+
+def _stepper(world, order):
+    return ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
+
+
+def tumble_error(order: int, h: float, duration: float = 1.0) -> float:
+    """max |omega_body(T) - exact| [rad/s] of the free top after duration."""
+    import dartpy as dart
+    world = dart_world(h, 0.0)
+    skel = dart.dynamics.Skeleton("top")
+    _, body = skel.createFreeJointAndBodyNodePair()
+    body.setMass(2.0)
+    body.setMomentOfInertia(*INERTIA, 0.0, 0.0, 0.0)
+    world.addSkeleton(skel)
+    skel.setVelocities(np.r_[OMEGA0, 1.0, 0.0, 0.0])
+    stepper = _stepper(world, order)
+    for _ in range(int(round(duration / h))):
+        stepper.step()
+    R = body.getWorldTransform().rotation()
+    I = INERTIA
+    rhs = lambda _, w: [(I[1] - I[2]) * w[1] * w[2] / I[0], (I[2] - I[0]) * w[2] * w[0] / I[1],
+                        (I[0] - I[1]) * w[0] * w[1] / I[2]]
+    exact = solve_ivp(rhs, (0.0, duration), OMEGA0, method="DOP853", rtol=1e-13, atol=1e-14).y[:, -1]
+    return float(np.max(np.abs(R.T @ np.array(skel.getVelocities())[:3] - exact)))
+
+
+def pendulum_energy_error(order: int, h: float, duration: float = 1.0) -> float:
+    """Largest |E(t) - E(0)| [J] of the pendulum over duration."""
+    world = dart_world(h)
+    skel = revolute_pendulum(world, 1.0)
+    stepper = _stepper(world, order)
+    energy = lambda: skel.computeKineticEnergy() + skel.computePotentialEnergy()
+    e0, worst = energy(), 0.0
+    for _ in range(int(round(duration / h))):
+        stepper.step()
+        worst = max(worst, abs(energy() - e0))
+    return worst
+
+
+def rocking_errors(order: int, h: float, duration: float = 1.0) -> tuple[float, float]:
+    """(largest tilt error [rad], largest relative rocking-energy error) of the rocking ellipsoid."""
+    from scenes import ellipsoid_rocking as er
+    traj = er.simulate(duration, h, stepper_options=ic.StepperOptions(order=order), on_failure="raise")
+    t, q, _, _ = traj.arrays()
+    exact, _ = er.exact_rocking(t)
+    e0 = er.exact_energy()
+    return (float(np.max(np.abs(er.tilt_angle(q) - exact))),
+            float(np.max(np.abs(er.rocking_energy(traj) - e0)) / e0))
+
+
+def ball(world, mu: float, z: float, v):
+    """A 1 kg solid ball of radius BALL_R (DART SphereShape, friction mu) at height z, velocity v."""
+    import dartpy as dart
+    skel = dart.dynamics.Skeleton("ball")
+    _, body = skel.createFreeJointAndBodyNodePair()
+    body.setMass(1.0)
+    body.setMomentOfInertia(*([0.4 * BALL_R ** 2] * 3), 0.0, 0.0, 0.0)
+    node = body.createShapeNode(dart.dynamics.SphereShape(BALL_R))
+    node.createCollisionAspect()
+    node.createDynamicsAspect().setFrictionCoeff(mu)
+    world.addSkeleton(skel)
+    skel.setPositions([0.0, 0.0, 0.0, 0.0, 0.0, z])
+    skel.setVelocities(np.r_[0.0, 0.0, 0.0, v])
+    return skel
+
+
+def slide_error(order: int, h: float, duration: float = 0.15) -> float:
+    """|x(T) - (v0 T - mu g T^2 / 2)| [m] of the sliding ball, T inside the sliding phase."""
+    world = dart_world(h)
+    ground_box(world, mu=BALL_MU)
+    skel = ball(world, BALL_MU, BALL_R, [BALL_V0, 0.0, 0.0])
+    stepper = _stepper(world, order)
+    n = int(round(duration / h))
+    for _ in range(n):
+        stepper.step()
+    T = n * h
+    return abs(float(skel.getPositions()[3]) - (BALL_V0 * T - 0.5 * BALL_MU * G * T * T))
+
+
+CASES = {
+    "tumble": (lambda o, h: tumble_error(o, h), "omega error [rad/s]"),
+    "pendulum": (lambda o, h: pendulum_energy_error(o, h), "energy error [J]"),
+    "rocking": (lambda o, h: rocking_errors(o, h)[0], "tilt error [rad]"),
+    "rocking energy": (lambda o, h: rocking_errors(o, h)[1], "relative energy error"),
+    "slide": (lambda o, h: slide_error(o, h), "position error [m]"),
+}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="h = 4e-3 and 2e-3 only")
+    args = parser.parse_args(argv)
+    steps = STEPS[:2] if args.quick else STEPS
+    results = {}
+    print(f"{'case':16s} order  " + "  ".join(f"h={h:<8g}" for h in steps) + "   observed orders      wall")
+    for name, (fn, unit) in CASES.items():
+        for order in (1, 2):
+            t0 = time.perf_counter()
+            errs = [fn(order, h) for h in steps]
+            wall = time.perf_counter() - t0
+            results[(name, order)] = errs
+            orders = [np.log2(a / b) if a > 0 and b > 0 else float("nan") for a, b in zip(errs, errs[1:])]
+            print(f"{name:16s} {order:5d}  " + "  ".join(f"{e:<10.3e}" for e in errs) + "   "
+                  + " ".join(f"{x:5.2f}" for x in orders) + f"   {wall:6.1f} s")
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return results
+    fig, axes = plt.subplots(1, len(CASES), figsize=(4 * len(CASES), 3.6))
+    for ax, (name, (_, unit)) in zip(axes, CASES.items()):
+        for order, style in ((1, "o-"), (2, "s-")):
+            ax.loglog(steps, results[(name, order)], style, label=f"order {order}")
+        ax.set_title(name)
+        ax.set_xlabel("h [s]")
+        ax.set_ylabel(unit)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    OUT.mkdir(exist_ok=True)
+    fig.savefig(OUT / "convergence.png", dpi=110)
+    print(f"figure: {OUT / 'convergence.png'}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,231 @@
+r"""Order 2: a split step after nonsmooth RATTLE, geometrically implicit (StepperOptions(order=2)).
+
+[GI]'s step (order 1) applies the whole impulse of a step in the geometry at l+1 and moves the
+bodies with the velocity at l+1: first order, and dissipative wherever the contact point moves
+over varying curvature (a rocking ellipsoid). Nonsmooth RATTLE (Breuling, Capobianco, Eugster &
+Leine, Nonlinear Analysis: Hybrid Systems 52, 2024) splits a step into two impulses: the first
+applied in the geometry at l, the second in the geometry at l+1, with the positions moved by the
+velocity in between. Written for this package's bodies (q, v, M, f as DART has them; W the
+contact Jacobian of a pair's frame n, t, o and its torsion row; R1 and P in units of the pair's
+s_p = h m g_ref, as [GI]'s unknowns), one step of h is
+
+stage 1, one geometrically implicit MCP with [GI]'s unknowns (u in place of v^{l+1}):
+
+    M(q) (u - v) = h/2 f(q, u) + W(q)^T R1                                           (R1)
+    q+ = q (+) h u                           (DART's integrator, as [GI] eq 21)       (R2)
+    a1, a2: the closest points at q+, [GI] (15)-(18);  0 <= R1_n _|_ gap(q+) >= 0 (19) (R3)
+    R1's friction: [GI] (21)-(22) with the slip (W_t(q) + W_t(q+))^T u / 2            (R4)
+
+stage 2, one MCP at the fixed geometry q+ (the contacts closed at q+, gap <= tolerance):
+
+    M(q+) (v+ - u) = h/2 f(q+, u) + W(q+)^T (P - R1)                                 (R5)
+    0 <= P_n _|_ W_n(q+)^T v+ >= 0           (Newton's impact law, restitution 0)     (R6)
+    P's friction: [GI] (21)-(22) with the slip W_t(q+)^T v+ and the total P_n         (R7)
+    an open contact (R1 = 0 by (R3)) keeps P = R1 = 0                                 (R8)
+
+Stage 1 is [GI]'s problem with two changes in its pair rows (rows/contact.py, P_SPLIT): the
+impulse enters the Newton-Euler rows through the frame and levers at l (a constant W(q), eq R1),
+and the friction rows see the mean slip (R4), and two in its skeleton rows: the force is
+h/2 f(q, u) linearised about v, h/2 (f(q, v) + df/dv (u - v)), that is M + h/2 dc/dv in place
+of M (c: DART's Coriolis forces, quadratic in v, so its central difference is exact) and h/2 f
+in place of h f; the error of the linearisation is O(h |u - v|^2) = O(h^3). Stage 2's rows are
+linear in v+ and P but for the friction rows (this module: Stage2).
+
+Why these choices (each measured on a 2D prototype first, see issue 14):
+* the frame at l in (R1) and at l+1 in (R5) is the trapezoidal rule for the contact force: with
+  the whole impulse at l+1 the scheme stays first order;
+* the mean slip (R4): with either one-sided tangent row, stage 1's friction is first order;
+* f at the half-step velocity in (R1): with f(q, v) the velocity-dependent forces (gyroscopic
+  torques, Coriolis) are first order.
+In free flight (R1), (R2), (R5) are the velocity Verlet scheme on DART's configuration space
+(second order); an impact is inelastic through (R6), and (R7) keeps the total friction maximally
+dissipative against the slip at the end of the step. The end-of-step guarantees of [GI] hold:
+closest points and non-penetration at q+ are stage 1's rows.
+
+The start frame of a pair (n0, t0, o0 and the levers r_b0 = a_b - p_b at l) comes from the last
+step's solution when the pair persists (its closest points at l+1 are the points at l now), else
+from a static closest-point solve at l (stepper.py).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import ncp
+
+
+def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
+    """A pair's frame at l as rows/contact.py's Q_N0.. columns read it (15,): n (unit, body 1 into
+    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (rows/contact.py), levers
+    a1 - p1, a2 - p2 (p_b: the body origins at l)."""
+    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    if dim == 3:
+        e = np.asarray(axis, float)
+        t = e - (e @ n) * n
+        t /= np.linalg.norm(t)
+        o = np.cross(n, t)
+    else:
+        t = np.array([-n[1], n[0], 0.0])
+        o = np.zeros(3)
+    return np.concatenate([n, t, o, np.asarray(a1, float) - p1, np.asarray(a2, float) - p2])
+
+
+@dataclass
+class ClosedPair:
+    """A contact closed at q+, as stage 2 reads it: its frame at q+ and stage 1's impulse."""
+    bodies: tuple          # (index into Stage2's bodies or -1 for a fixed body) for body 1, body 2
+    a: tuple               # (a1, a2) world points at q+
+    n: np.ndarray
+    t: np.ndarray
+    o: np.ndarray
+    dim: int
+    mu: float
+    e_t: float
+    e_o: float
+    e_r: float             # > 0: the pair has a torsion row
+    s_p: float
+    R1: np.ndarray         # stage 1's (p_n, p_t, p_o, p~_r) in units of s_p (zeros where absent)
+    sigma1: float
+
+    @property
+    def friction(self) -> bool:
+        return self.mu > 0.0
+
+
+class Stage2:
+    """The MCP of (R5)-(R7) over x = [v+ of the skeletons; per closed pair P_n, then, with
+    friction, P_t (P_o in 3D) (P~_r with torsion) and sigma], impulses in units of s_p.
+
+    skeletons: per skeleton (M(q+) (k, k), u (k,), h/2 f(q+, u) (k,)), its columns contiguous in
+    that order; bodies: per body (first column of its skeleton, DART's world Jacobian of its
+    origin at q+ (6, k), angular rows first, its origin p at q+)."""
+
+    def __init__(self, skeletons, bodies, pairs):
+        self.pairs = list(pairs)
+        cols, at = [], 0
+        for M, _, _ in skeletons:
+            cols.append(at)
+            at += len(M)
+        self.nv = at
+        self.M = np.zeros((at, at))
+        self.u = np.zeros(at)
+        self.hf = np.zeros(at)
+        for c, (M, u, hf) in zip(cols, skeletons):
+            k = len(M)
+            self.M[c:c + k, c:c + k] = M
+            self.u[c:c + k], self.hf[c:c + k] = u, hf
+        self.scale = 1.0 / np.maximum(np.diag(self.M), 1e-300)
+        # per pair its rows G (4, nv): n . v_rel, t . v_rel, o . v_rel, n . w_rel as functions of v
+        self.G, self.slots = [], []
+        lo, hi = [np.full(at, -np.inf)], [np.full(at, np.inf)]
+        for cp in self.pairs:
+            G = np.zeros((4, at))
+            for side, sgn in ((0, -1.0), (1, 1.0)):
+                b = cp.bodies[side]
+                if b < 0:
+                    continue
+                col, J, p = bodies[b]
+                Aw, Av = J[:3], J[3:]
+                r = cp.a[side] - p
+                k = J.shape[1]
+                for row, e in enumerate((cp.n, cp.t, cp.o)):
+                    G[row, col:col + k] += sgn * (e @ Av + np.cross(r, e) @ Aw)
+                G[3, col:col + k] += sgn * (cp.n @ Aw)
+            self.G.append(G)
+            nt = (cp.dim - 1) if cp.friction else 0
+            nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
+            ns = 1 if cp.friction else 0
+            self.slots.append((at, nt, nr, ns))
+            lo.append(np.r_[0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
+            hi.append(np.full(1 + nt + nr + ns, np.inf))
+            at += 1 + nt + nr + ns
+        self.n = at
+        self.lower, self.upper = np.concatenate(lo), np.concatenate(hi)
+
+    def _impulse_rows(self, cp, G, nt, nr):
+        """(W^T columns (nv, m) per unknown impulse in units of s_p, in x's order P_n, P_t, (P_o), (P~_r))."""
+        rows = [G[0]] + [G[1 + i] for i in range(nt)] + ([cp.e_r * G[3]] if nr else [])
+        return cp.s_p * np.array(rows).T
+
+    def fun(self, x):
+        return self._eval(x, False)[0]
+
+    def jac(self, x):
+        return self._eval(x, True)[1]
+
+    def _eval(self, x, need_jac):
+        nv = self.nv
+        v = x[:nv]
+        F = np.zeros(self.n)
+        J = np.zeros((self.n, self.n)) if need_jac else None
+        rv = self.M @ (v - self.u) - self.hf
+        if need_jac:
+            J[:nv, :nv] = self.M
+        for cp, G, (c, nt, nr, ns) in zip(self.pairs, self.G, self.slots):
+            m = 1 + nt + nr
+            W = self._impulse_rows(cp, G, nt, nr)
+            P = x[c:c + m]
+            R1 = np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
+            rv -= W @ (P - R1)                                    # (R5)
+            if need_jac:
+                J[:nv, c:c + m] = -W
+            F[c] = G[0] @ v                                       # (R6)
+            if need_jac:
+                J[c, :nv] = G[0]
+            if not ns:
+                continue
+            p_n, sigma = P[0], x[c + m]
+            mu = cp.mu
+            cone = (mu * p_n) ** 2
+            weights = [cp.e_t ** 2, cp.e_o ** 2][:nt] + ([cp.e_r] if nr else [])
+            grows = [G[1 + i] for i in range(nt)] + ([G[3]] if nr else [])
+            for i, (wgt, g) in enumerate(zip(weights, grows)):   # (R7): [GI] (21)
+                r = c + 1 + i
+                slip = g @ v
+                F[r] = wgt * mu * p_n * slip + P[1 + i] * sigma
+                if need_jac:
+                    J[r, :nv] = wgt * mu * p_n * g
+                    J[r, c] = wgt * mu * slip
+                    J[r, r] = sigma
+                    J[r, c + m] = P[1 + i]
+            ecoef = [cp.e_t ** 2, cp.e_o ** 2][:nt] + ([1.0] if nr else [])
+            for i, e2 in enumerate(ecoef):
+                cone -= P[1 + i] ** 2 / e2
+            F[c + m] = cone                                       # [GI] (22)
+            if need_jac:
+                J[c + m, c] = 2.0 * mu * mu * p_n
+                for i, e2 in enumerate(ecoef):
+                    J[c + m, c + 1 + i] = -2.0 * P[1 + i] / e2
+        F[:nv] = self.scale * rv
+        if need_jac:
+            J[:nv] *= self.scale[:, None]
+        return F, J
+
+    def start(self) -> np.ndarray:
+        """The free half kick for v+, twice stage 1's impulse (the trapezoidal guess R2 = R1) and
+        stage 1's sigma."""
+        x = np.zeros(self.n)
+        x[:self.nv] = self.u + np.linalg.solve(self.M, self.hf)
+        for cp, (c, nt, nr, ns) in zip(self.pairs, self.slots):
+            m = 1 + nt + nr
+            x[c:c + m] = 2.0 * np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
+            if ns:
+                x[c + m] = cp.sigma1
+        return x
+
+    def solve(self, options: ncp.SolverOptions):
+        """ncp.solve_mcp on (R5)-(R7) from start(); returns its result (x: v+, then the impulses)."""
+        return ncp.solve_mcp(self.fun, self.jac, self.start(), self.lower, self.upper, options)
+
+    def impulses(self, x):
+        """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""
+        out = []
+        for (c, nt, nr, ns) in self.slots:
+            P = np.zeros(4)
+            P[0] = x[c]
+            P[1:1 + nt] = x[c + 1:c + 1 + nt]
+            if nr:
+                P[3] = x[c + 1 + nt]
+            out.append(P)
+        return out

@@ -1,0 +1,121 @@
+"""Order 2 (rattle.py): the split stage's rows against central differences, observed orders in
+free flight, on a pendulum and on a rocking ellipsoid against exact references, an inelastic
+impact, slide-to-roll at 5/7 v0, and the refusals."""
+import numpy as np
+import pytest
+
+import implicit_contact as ic
+from comparisons import convergence as cv
+from implicit_contact import shapes as shp
+from implicit_contact.params import Friction
+from implicit_contact.testing import dart_world, ground_box, jacobian_error, random_pair_problem, revolute_pendulum
+
+H = 0.01
+EPS_FD = 1e-6
+ATOL_FD = 5e-6            # as test_formulation: truncation + round-off of central differences
+ORDER_2 = 1.85            # observed order from h to h/2 of a second-order scheme (its asymptote is 2)
+ORDER_1_MAX = 1.2         # ... and the most a first-order one shows
+
+SPLIT_CASES = [
+    (2, ("planar", "fixed"), shp.Disc(1.0, center=[0.1, 0.2]), shp.HalfPlane([0.0, 1.0], 0.0), True, Friction(0.4)),
+    (2, ("planar", "planar"), shp.Ellipse([1.0, 0.5]), shp.Superellipse([0.6, 0.3], 4.0), False, Friction(0.4)),
+    (3, ("free", "fixed"), shp.Sphere(0.5, center=[0.1, 0.0, 0.2]), shp.HalfSpace([0, 0, 1], 0.0), True,
+     Friction(0.3, 1.0, 0.8, 0.2)),
+    (3, ("free", "free"), shp.Ellipsoid([1.0, 0.5, 0.7]), shp.Superquadric([0.5, 0.4, 0.3], 4.0), False,
+     Friction(0.3, 1.0, 0.8, 0.2)),
+    (3, ("free", "free"), shp.Sphere(0.4), shp.Intersection.box([0.3, 0.2, 0.1]), False, Friction(0.3, 1.0, 1.0, 0.0)),
+]
+
+
+@pytest.mark.parametrize("case", range(len(SPLIT_CASES)))
+def test_split_stage_jacobian_matches_central_differences(case):
+    """Stage 1's rows (impulse in a fixed frame at l, the mean slip) differentiate like [GI]'s."""
+    dim, kinds, piece1, piece2, fixed2, friction = SPLIT_CASES[case]
+    frame = np.random.default_rng(50 + case).normal(size=15)
+    problem, z = random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(case), H, fixed2,
+                                     start_frame=frame)
+    assert jacobian_error(problem, z, EPS_FD) <= ATOL_FD
+    # the frame at l is used: the residual differs from [GI]'s at the same point
+    plain, z_plain = random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(case), H, fixed2)
+    assert np.max(np.abs(problem.fun(z) - plain.fun(z_plain))) > 1e-3
+
+
+def _observed_order(errors):
+    return float(np.log2(errors[0] / errors[1]))
+
+
+def test_order_2_tumbles_a_free_body_to_second_order():
+    """A free asymmetric top (comparisons/convergence.py): body-frame angular velocity after 0.5 s
+    against Euler's equations."""
+    err = {order: [cv.tumble_error(order, h, 0.5) for h in (4e-3, 2e-3)] for order in (1, 2)}
+    assert _observed_order(err[2]) >= ORDER_2
+    assert _observed_order(err[1]) <= ORDER_1_MAX
+    assert err[2][1] < 0.01 * err[1][1]
+
+
+def test_order_2_keeps_a_pendulum_energy_to_second_order():
+    """A revolute pendulum released at 1 rad: the largest energy error over 1 s."""
+    err = [cv.pendulum_energy_error(2, h) for h in (4e-3, 2e-3)]
+    assert _observed_order(err) >= ORDER_2
+    assert err[1] < 0.01 * cv.pendulum_energy_error(1, 2e-3)
+
+
+ROCK_ENERGY_RTOL = 1e-4   # issue 14's bound on the rocking energy at h = 2e-3
+
+
+def test_order_2_rocks_an_ellipsoid_to_second_order_and_keeps_its_energy():
+    """The rocking ellipsoid (scenes/ellipsoid_rocking.py) over 0.6 s, against its exact 1-dof
+    rolling reference: tilt error second order in h, rocking energy within 1e-4 at h = 2e-3."""
+    from scenes import ellipsoid_rocking as er
+    errors, energy = [], None
+    for h in (4e-3, 2e-3):
+        traj = er.simulate(0.6, h, stepper_options=ic.StepperOptions(order=2), on_failure="raise")
+        t, q, _, _ = traj.arrays()
+        exact, _ = er.exact_rocking(t)
+        errors.append(float(np.max(np.abs(er.tilt_angle(q) - exact))))
+        energy = er.rocking_energy(traj)
+    assert _observed_order(errors) >= ORDER_2
+    assert np.max(np.abs(energy - er.exact_energy())) <= ROCK_ENERGY_RTOL * er.exact_energy()
+
+
+TOL = 1e-6                 # the stepper's default contact tolerance
+
+
+def test_order_2_impact_is_inelastic_and_does_not_penetrate():
+    """A ball falling at 2 m/s onto the ground stops in its normal direction (restitution 0)."""
+    h = 0.005
+    world = dart_world(h)
+    ground_box(world, mu=0.5)
+    ball = cv.ball(world, 0.5, 0.1 + 0.004, [0.0, 0.0, -2.0])
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=2))
+    lowest = np.inf
+    for _ in range(40):
+        stepper.step()
+        lowest = min(lowest, ball.getPositions()[5])
+    assert lowest >= 0.1 - TOL
+    assert abs(ball.getVelocities()[5]) < 1e-8                 # resting, no bounce
+    assert abs(ball.getPositions()[5] - 0.1) <= TOL
+
+
+def test_order_2_slide_to_roll_ends_at_five_sevenths():
+    """A ball sliding without spin at v0 on mu = 0.3 rolls at 5/7 v0 once friction has stopped
+    the slip (at t = 2 v0 / (7 mu g) = 0.19 s), then keeps that speed."""
+    h, v0 = 0.002, 2.0
+    world = dart_world(h)
+    ground_box(world, mu=0.3)
+    ball = cv.ball(world, 0.3, 0.1, [v0, 0.0, 0.0])
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=2))
+    for _ in range(150):
+        stepper.step()
+    v = np.array(ball.getVelocities())
+    assert abs(v[3] - 5.0 / 7.0 * v0) < 1e-6
+    assert abs(v[1] * 0.1 - v[3]) < 1e-6                          # rolling: omega_y r = v_x
+
+
+def test_order_2_refuses_joint_friction_with_a_sentence():
+    world = dart_world(0.01)
+    revolute_pendulum(world, 0.5, friction=0.1)
+    with pytest.raises(ValueError, match=r"order=2\) does not support Coulomb joint friction"):
+        ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=2))
+    with pytest.raises(ValueError, match="order must be 1"):
+        ic.StepperOptions(order=3)
