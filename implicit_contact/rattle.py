@@ -120,7 +120,7 @@ class Stage2:
         self.G, self.slots = [], []
         lo, hi = [np.full(at, -np.inf)], [np.full(at, np.inf)]
         for cp in self.pairs:
-            G = np.zeros((4, at))
+            G = np.zeros((4, self.nv))
             for side, sgn in ((0, -1.0), (1, 1.0)):
                 b = cp.bodies[side]
                 if b < 0:
