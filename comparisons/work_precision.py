@@ -182,7 +182,7 @@ class RunConfig:
     run of a scene without a closed form); shape: DART's disc representation on the disc scenes
     ("ngon100", "ngon1000", "cylinder", "sphere"), "" else; detector: DART's collision detector,
     "" for the implicit stepper; h [s]; tol: the implicit solver's tolerance (None for DART);
-    duration [s].
+    duration [s]; order: the implicit stepper's StepperOptions.order (1 for DART runs).
     """
     scene: str
     stepper: str
@@ -191,6 +191,7 @@ class RunConfig:
     h: float
     tol: float | None
     duration: float
+    order: int = 1
 
     def __post_init__(self):
         if self.scene not in SCENES:
@@ -211,6 +212,9 @@ class RunConfig:
             raise ValueError(f"tol must be None exactly for DART runs, got {self.tol!r} for {self.stepper}")
         if not native and self.tol != DEFAULT_TOL and self.scene not in TOLERANCE_SCENES:
             raise ValueError(f"{self.scene} runs the implicit stepper at its default tolerance only")
+        if self.order not in (1, 2) or (self.order == 2 and (self.stepper != "implicit" or self.scene not in ORDER2_SCENES)):
+            raise ValueError(f"order 2 runs the implicit stepper on {ORDER2_SCENES} only, got order {self.order!r} "
+                             f"for {self.stepper} on {self.scene}")
         if not (math.isfinite(self.h) and self.h > 0):
             raise ValueError(f"h must be a finite time step > 0 [s], got {self.h!r}")
         if not (math.isfinite(self.duration) and self.duration >= self.h):
@@ -229,7 +233,7 @@ class RunConfig:
             return f"DART/{self.detector.upper()}" + (f" {shape}" if shape else "")
         if self.stepper == "reference":
             return "reference (fine implicit)"
-        return "implicit" + ("" if self.tol == DEFAULT_TOL else f", tol {self.tol:g}")
+        return "implicit" + (" order 2" if self.order == 2 else "") + ("" if self.tol == DEFAULT_TOL else f", tol {self.tol:g}")
 
     @property
     def label(self) -> str:
@@ -238,6 +242,7 @@ class RunConfig:
 
 DISC_SHAPES = ("ngon100", "ngon1000", "cylinder", "sphere")
 TOLERANCE_SCENES = ("disc_rolling", "slide_to_roll", "ellipsoid_rocking")
+ORDER2_SCENES = ("disc_rolling", "slide_to_roll", "sphere_on_two_spheres", "ellipsoid_rocking")   # (no quasi-rigid layers yet)
 
 
 @dataclass(frozen=True, eq=False)
@@ -269,10 +274,10 @@ def run(config: RunConfig) -> RunRecord:
     return _run_quasi_rigid(config)
 
 
-def _stepper_options(tol: float):
+def _stepper_options(tol: float, order: int = 1):
     from implicit_contact import stepper
 
-    return stepper.StepperOptions(solver=replace(stepper.DEFAULT_SOLVER, tol=tol))
+    return stepper.StepperOptions(solver=replace(stepper.DEFAULT_SOLVER, tol=tol), order=order)
 
 
 def _run_disc(config: RunConfig) -> RunRecord:
@@ -286,7 +291,7 @@ def _run_disc(config: RunConfig) -> RunRecord:
     else:
         from scenes import disc_rolling
 
-        traj = disc_rolling.simulate(config.duration, config.h, v0=v0, stepper_options=_stepper_options(config.tol))
+        traj = disc_rolling.simulate(config.duration, config.h, v0=v0, stepper_options=_stepper_options(config.tol, config.order))
     t, q, v, ke = traj.arrays()
     series = {"x": q[:, 0], "v_x": v[:, 0], "omega": v[:, 2], "ke": ke}
     return RunRecord(config, t, series, float(np.sum(traj.step_seconds)))
@@ -312,7 +317,8 @@ def _run_spheres(config: RunConfig) -> RunRecord:
         forces = np.array(forces)
         events = _native_sphere_events(t[1:], forces, _slip_on(q[1:], v[1:], scene.SMALL, scene.RADIUS), scene)
     else:
-        traj = scene.simulate(config.duration, config.h, on_failure="retry")
+        traj = scene.simulate(config.duration, config.h, on_failure="retry",
+                              stepper_options=_stepper_options(config.tol, config.order))
         t, q, v, _ = traj.arrays()
         events = scene.events(traj)
     return RunRecord(config, t, {"v": v}, float(np.sum(traj.step_seconds)), events=events)
@@ -358,7 +364,7 @@ def _run_ellipsoid(config: RunConfig) -> RunRecord:
         world.setCollisionDetector(dart_native.make_detector(config.detector))
         traj = simulate_stepper(world, dart_native.DartNative(world), config.duration)
     else:
-        traj = scene.simulate(config.duration, config.h, stepper_options=_stepper_options(config.tol))
+        traj = scene.simulate(config.duration, config.h, stepper_options=_stepper_options(config.tol, config.order))
     t, q, _, _ = traj.arrays()
     series = {"tilt": scene.tilt_angle(q), "energy": scene.rocking_energy(traj)}
     return RunRecord(config, t, series, float(np.sum(traj.step_seconds)))
@@ -489,6 +495,7 @@ class ScenePlan:
     dart_shapes: tuple = ("",)
     detectors: tuple = ("fcl", "dart")
     reference_h: float | None = None
+    orders: tuple = (1,)          # the implicit stepper's orders (order 2 at the default tolerance)
 
     def __post_init__(self):
         if self.scene not in SCENES:
@@ -500,10 +507,10 @@ class ScenePlan:
 _IMPLICIT_H = (0.02, 0.01, 0.005, 0.002, 0.001, 0.0005)
 _DART_H = (0.02, 0.01, 0.005, 0.002, 0.001, 0.0005, 0.0002, 0.0001)
 DEFAULT_PLANS = (
-    ScenePlan("disc_rolling", 5.0, _IMPLICIT_H, (DEFAULT_TOL, 1e-6), _DART_H, DISC_SHAPES),
-    ScenePlan("slide_to_roll", 1.0, _IMPLICIT_H, (DEFAULT_TOL, 1e-6), _DART_H, DISC_SHAPES),
-    ScenePlan("sphere_on_two_spheres", 4.0, _IMPLICIT_H[:4], dart_steps=_DART_H, reference_h=REFERENCE_H),
-    ScenePlan("ellipsoid_rocking", 3.0, _IMPLICIT_H[:-1], dart_steps=_DART_H),
+    ScenePlan("disc_rolling", 5.0, _IMPLICIT_H, (DEFAULT_TOL, 1e-6), _DART_H, DISC_SHAPES, orders=(1, 2)),
+    ScenePlan("slide_to_roll", 1.0, _IMPLICIT_H, (DEFAULT_TOL, 1e-6), _DART_H, DISC_SHAPES, orders=(1, 2)),
+    ScenePlan("sphere_on_two_spheres", 4.0, _IMPLICIT_H[:4], dart_steps=_DART_H, reference_h=REFERENCE_H, orders=(1, 2)),
+    ScenePlan("ellipsoid_rocking", 3.0, _IMPLICIT_H[:-1], dart_steps=_DART_H, orders=(1, 2)),
     ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4, 2e-4, 1e-4)),
 )
 QUICK_PLANS = (
@@ -512,7 +519,7 @@ QUICK_PLANS = (
     ScenePlan("slide_to_roll", 1.0, (0.02, 0.005), dart_steps=(0.01, 0.001), dart_shapes=("ngon1000", "cylinder", "sphere"),
               detectors=("fcl",)),
     ScenePlan("sphere_on_two_spheres", 4.0, (0.02, 0.01), dart_steps=(0.01, 0.001), detectors=("fcl",), reference_h=2e-3),
-    ScenePlan("ellipsoid_rocking", 3.0, (0.02, 0.01), dart_steps=(0.01, 0.001), detectors=("fcl",)),
+    ScenePlan("ellipsoid_rocking", 3.0, (0.02, 0.01), dart_steps=(0.01, 0.001), detectors=("fcl",), orders=(1, 2)),
     ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4)),
 )
 
@@ -523,6 +530,8 @@ def plan(plans) -> tuple[RunConfig, ...]:
     for p in plans:
         configs += [RunConfig(p.scene, "implicit", "", "", h, tol, p.horizon) for tol in p.tolerances
                     for h in p.implicit_steps]
+        configs += [RunConfig(p.scene, "implicit", "", "", h, DEFAULT_TOL, p.horizon, order)
+                    for order in p.orders if order != 1 for h in p.implicit_steps]
         if SCENES[p.scene].dart:
             configs += [RunConfig(p.scene, "dart_native", shape, det, h, None, p.horizon)
                         for shape in p.dart_shapes for det in p.detectors for h in p.dart_steps]

@@ -53,6 +53,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import ncp
+from .rows import velocity as rv
 
 
 def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
@@ -95,7 +96,8 @@ class ClosedPair:
 
 class Stage2:
     """The MCP of (R5)-(R7) over x = [v+ of the skeletons; per closed pair P_n, then, with
-    friction, P_t (P_o in 3D) (P~_r with torsion) and sigma], impulses in units of s_p.
+    friction, P_t (P_o in 3D) (P~_r with torsion) and sigma], impulses in units of s_p; its rows
+    are rows/velocity.py's kernels.
 
     skeletons: per skeleton (M(q+) (k, k), u (k,), h/2 f(q+, u) (k,)), its columns contiguous in
     that order; bodies: per body (first column of its skeleton, DART's world Jacobian of its
@@ -116,98 +118,49 @@ class Stage2:
             self.M[c:c + k, c:c + k] = M
             self.u[c:c + k], self.hf[c:c + k] = u, hf
         self.scale = 1.0 / np.maximum(np.diag(self.M), 1e-300)
-        # per pair its rows G (4, nv): n . v_rel, t . v_rel, o . v_rel, n . w_rel as functions of v
-        self.G, self.slots = [], []
+        npairs, nb = len(self.pairs), len(bodies)
+        kmax = max([1] + [J.shape[1] for _, J, _ in bodies])
+        bcol = np.array([b[0] for b in bodies], np.int64)
+        bk = np.array([b[1].shape[1] for b in bodies], np.int64)
+        bJ = np.zeros((nb, 6, kmax))
+        bp = np.zeros((nb, 3))
+        for i, (_, J, p) in enumerate(bodies):
+            bJ[i, :, :J.shape[1]], bp[i] = J, p
+        ends = np.array([cp.bodies for cp in self.pairs], np.int64).reshape(npairs, 2)
+        a = np.array([cp.a for cp in self.pairs], float).reshape(npairs, 2, 3)
+        frame = np.array([(cp.n, cp.t, cp.o) for cp in self.pairs], float).reshape(npairs, 3, 3)
+        self.G = np.zeros((npairs, 4, at))
+        rv.velocity_rows(ends, a, frame, bcol, bk, bJ, bp, self.G)
+        self.pi = np.zeros((npairs, 4), np.int64)
+        self.pf = np.zeros((npairs, rv.NVF))
         lo, hi = [np.full(at, -np.inf)], [np.full(at, np.inf)]
-        for cp in self.pairs:
-            G = np.zeros((4, self.nv))
-            for side, sgn in ((0, -1.0), (1, 1.0)):
-                b = cp.bodies[side]
-                if b < 0:
-                    continue
-                col, J, p = bodies[b]
-                Aw, Av = J[:3], J[3:]
-                r = cp.a[side] - p
-                k = J.shape[1]
-                for row, e in enumerate((cp.n, cp.t, cp.o)):
-                    G[row, col:col + k] += sgn * (e @ Av + np.cross(r, e) @ Aw)
-                G[3, col:col + k] += sgn * (cp.n @ Aw)
-            self.G.append(G)
+        for k, cp in enumerate(self.pairs):
             nt = (cp.dim - 1) if cp.friction else 0
             nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
             ns = 1 if cp.friction else 0
-            self.slots.append((at, nt, nr, ns))
+            self.pi[k] = (at, nt, nr, ns)
+            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1)
             lo.append(np.r_[0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
             hi.append(np.full(1 + nt + nr + ns, np.inf))
             at += 1 + nt + nr + ns
         self.n = at
         self.lower, self.upper = np.concatenate(lo), np.concatenate(hi)
-
-    def _impulse_rows(self, cp, G, nt, nr):
-        """(W^T columns (nv, m) per unknown impulse in units of s_p, in x's order P_n, P_t, (P_o), (P~_r))."""
-        rows = [G[0]] + [G[1 + i] for i in range(nt)] + ([cp.e_r * G[3]] if nr else [])
-        return cp.s_p * np.array(rows).T
+        self._F, self._J = np.zeros(at), np.zeros((at, at))
 
     def fun(self, x):
-        return self._eval(x, False)[0]
+        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self._F, self._J, False)
+        return self._F.copy()
 
     def jac(self, x):
-        return self._eval(x, True)[1]
-
-    def _eval(self, x, need_jac):
-        nv = self.nv
-        v = x[:nv]
-        F = np.zeros(self.n)
-        J = np.zeros((self.n, self.n)) if need_jac else None
-        rv = self.M @ (v - self.u) - self.hf
-        if need_jac:
-            J[:nv, :nv] = self.M
-        for cp, G, (c, nt, nr, ns) in zip(self.pairs, self.G, self.slots):
-            m = 1 + nt + nr
-            W = self._impulse_rows(cp, G, nt, nr)
-            P = x[c:c + m]
-            R1 = np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
-            rv -= W @ (P - R1)                                    # (R5)
-            if need_jac:
-                J[:nv, c:c + m] = -W
-            F[c] = G[0] @ v                                       # (R6)
-            if need_jac:
-                J[c, :nv] = G[0]
-            if not ns:
-                continue
-            p_n, sigma = P[0], x[c + m]
-            mu = cp.mu
-            cone = (mu * p_n) ** 2
-            weights = [cp.e_t ** 2, cp.e_o ** 2][:nt] + ([cp.e_r] if nr else [])
-            grows = [G[1 + i] for i in range(nt)] + ([G[3]] if nr else [])
-            for i, (wgt, g) in enumerate(zip(weights, grows)):   # (R7): [GI] (21)
-                r = c + 1 + i
-                slip = g @ v
-                F[r] = wgt * mu * p_n * slip + P[1 + i] * sigma
-                if need_jac:
-                    J[r, :nv] = wgt * mu * p_n * g
-                    J[r, c] = wgt * mu * slip
-                    J[r, r] = sigma
-                    J[r, c + m] = P[1 + i]
-            ecoef = [cp.e_t ** 2, cp.e_o ** 2][:nt] + ([1.0] if nr else [])
-            for i, e2 in enumerate(ecoef):
-                cone -= P[1 + i] ** 2 / e2
-            F[c + m] = cone                                       # [GI] (22)
-            if need_jac:
-                J[c + m, c] = 2.0 * mu * mu * p_n
-                for i, e2 in enumerate(ecoef):
-                    J[c + m, c + 1 + i] = -2.0 * P[1 + i] / e2
-        F[:nv] = self.scale * rv
-        if need_jac:
-            J[:nv] *= self.scale[:, None]
-        return F, J
+        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self._F, self._J, True)
+        return self._J.copy()
 
     def start(self) -> np.ndarray:
         """The free half kick for v+, twice stage 1's impulse (the trapezoidal guess R2 = R1) and
         stage 1's sigma."""
         x = np.zeros(self.n)
         x[:self.nv] = self.u + np.linalg.solve(self.M, self.hf)
-        for cp, (c, nt, nr, ns) in zip(self.pairs, self.slots):
+        for cp, (c, nt, nr, ns) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + m] = 2.0 * np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
             if ns:
@@ -221,7 +174,7 @@ class Stage2:
     def impulses(self, x):
         """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""
         out = []
-        for (c, nt, nr, ns) in self.slots:
+        for (c, nt, nr, ns) in self.pi:
             P = np.zeros(4)
             P[0] = x[c]
             P[1:1 + nt] = x[c + 1:c + 1 + nt]

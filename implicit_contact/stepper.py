@@ -614,19 +614,20 @@ class ImplicitContactStepper:
 
     def _start_frame(self, spec, state) -> np.ndarray:
         """A pair's frame at l (rattle.start_frame): its closest points at l from the last step's
-        solution when it had the pair the same way round, else from a static solve at l."""
+        solution when it had the pair (the same way round: _pair_spec builds a persisting pair
+        from that memory), else from a static solve at l."""
         first, second = spec.objects
         d = spec.dim
         poses = state.poses_now
-        res = _closest_seed(first.piece, _pose_dim(poses[first.body], d), second.piece, _pose_dim(poses[second.body], d))
-        a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
-        normal = np.asarray(res.normal, float)
         k = self._last.keys.get(spec.key)
         if k is not None:
             rep = self._last.rep[k]
-            n_mem = rep[rc.R_N:rc.R_N + 3]
-            if float(n_mem[:d] @ normal[:d]) > 0.0:
-                a1, a2, normal = rep[rc.R_A1:rc.R_A1 + d], rep[rc.R_A2:rc.R_A2 + d], n_mem[:d]
+            a1, a2, normal = rep[rc.R_A1:rc.R_A1 + d], rep[rc.R_A2:rc.R_A2 + d], rep[rc.R_N:rc.R_N + d]
+        else:
+            res = _closest_seed(first.piece, _pose_dim(poses[first.body], d), second.piece,
+                                _pose_dim(poses[second.body], d))
+            a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
+            normal = np.asarray(res.normal, float)
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
         pad = lambda x: np.r_[x, np.zeros(3 - len(x))]

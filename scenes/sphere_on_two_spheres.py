@@ -75,9 +75,9 @@ def push(world, t):
 
 
 # 3. Step it
-def simulate(duration: float = 5.0, h: float = H, on_failure: str = "raise") -> Trajectory:
+def simulate(duration: float = 5.0, h: float = H, on_failure: str = "raise", stepper_options=None) -> Trajectory:
     world = build_world(h)
-    stepper = ic.ImplicitContactStepper(world, on_failure=on_failure)
+    stepper = ic.ImplicitContactStepper(world, on_failure=on_failure, options=stepper_options)
     ball = world.getSkeleton("ball").getBodyNode(0)
     fixed = world.getSkeleton("fixed_spheres")
     for name in ("sphere_r10", "sphere_r9"):

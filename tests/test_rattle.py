@@ -140,3 +140,52 @@ def test_order_2_example_2_events_agree_with_order_1():
     assert found[1].keys() == found[2].keys() and len(found[1]) == 3
     for name, t in found[1].items():
         assert abs(found[2][name] - t) <= EVENT_TOL, name
+
+
+def _random_stage2(rng):
+    """Two free bodies (DART's world Jacobian I6) and a fixed one; three closed pairs: free/free
+    with torsion, free/fixed with friction, free/fixed frictionless."""
+    from implicit_contact import rattle
+
+    def frame():
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        t = np.cross(n, rng.normal(size=3))
+        t /= np.linalg.norm(t)
+        return n, t, np.cross(n, t)
+
+    skeletons = []
+    for _ in range(2):
+        A = rng.normal(size=(6, 6))
+        skeletons.append((A @ A.T + 6 * np.eye(6), rng.normal(size=6), rng.normal(size=6)))
+    bodies = [(0, np.eye(6), rng.normal(size=3)), (6, np.eye(6), rng.normal(size=3))]
+    pairs = []
+    for ends, mu, e_r in (((0, 1), 0.4, 0.05), ((1, -1), 0.3, 0.0), ((0, -1), 0.0, 0.0)):
+        n, t, o = frame()
+        R1 = np.r_[abs(rng.normal()) + 0.2, 0.1 * rng.normal(size=2), 0.1 * rng.normal() if e_r else 0.0]
+        pairs.append(rattle.ClosedPair(ends, (rng.normal(size=3), rng.normal(size=3)), n, t, o, 3, mu, 1.0, 0.8,
+                                       e_r, 0.05, R1, 0.3))
+    return rattle.Stage2(skeletons, bodies, pairs), bodies, pairs
+
+
+def test_stage_2_rows_are_point_velocities_and_their_jacobian_matches_central_differences():
+    rng = np.random.default_rng(7)
+    stage, bodies, pairs = _random_stage2(rng)
+    v = rng.normal(size=stage.nv)
+    for cp, G in zip(pairs, stage.G):
+        # the oracle: material point velocities v_o + omega x (a - p) of each free end
+        vel, omega = np.zeros(3), np.zeros(3)
+        for side, sgn in ((0, -1.0), (1, 1.0)):
+            b = cp.bodies[side]
+            if b >= 0:
+                col, _, p = bodies[b]
+                w, vo = v[col:col + 3], v[col + 3:col + 6]
+                vel += sgn * (vo + np.cross(w, cp.a[side] - p))
+                omega += sgn * w
+        np.testing.assert_allclose(G @ v, [cp.n @ vel, cp.t @ vel, cp.o @ vel, cp.n @ omega], rtol=0, atol=1e-12)
+    x = stage.start() + 0.1 * rng.normal(size=stage.n)
+    x[stage.nv:] = np.abs(x[stage.nv:]) + 0.2
+    J = stage.jac(x)
+    J_fd = np.column_stack([(stage.fun(x + EPS_FD * e) - stage.fun(x - EPS_FD * e)) / (2 * EPS_FD)
+                            for e in np.eye(stage.n)])
+    assert np.max(np.abs(J - J_fd) / np.maximum(1.0, np.abs(J_fd))) <= ATOL_FD

@@ -1,0 +1,136 @@
+r"""The rows of order 2's second stage (implicit_contact/rattle.py, eqs R5-R7), compiled.
+
+At the fixed geometry q+ every closed pair c has four rows of velocity: G_c v = (n . v_rel,
+t . v_rel, o . v_rel, n . w_rel), v_rel the velocity of body 2's material point at a2 relative
+to body 1's at a1, w_rel = omega_2 - omega_1. With DART's world Jacobian of a body's origin
+J_b = [A_w; A_v] (angular rows first), lever r_b = a_b - p_b and s_1 = -1, s_2 = +1:
+
+    G_c[e] += s_b (e^T A_v + (r_b x e)^T A_w)     e = n, t, o
+    G_c[3] += s_b n^T A_w
+
+Unknowns x = [v+; per pair P_n, (P_t, P_o), (P~_r), (sigma)] (impulses in units of s_p); pair
+table pi = (first column, tangent unknowns, torsion unknown, sigma), pf = (mu, e_t, e_o, e_r,
+s_p, R1_n, R1_t, R1_o, R1~_r). Rows:
+
+    M (v+ - u) - h/2 f - sum_c s_p W_c^T (P_c - R1_c)                   (R5), scaled by 1/diag(M)
+    n . v_rel                         complementary to P_n >= 0        (R6)
+    e^2 mu P_n (e . v_rel) + P_e sigma,   e_r mu P_n (n . w_rel) + P~_r sigma    (R7): [GI] (21)
+    mu^2 P_n^2 - P_t^2/e_t^2 - P_o^2/e_o^2 - P~_r^2  complementary to sigma >= 0   [GI] (22)
+
+with W_c's columns (G_c[0], G_c[1], G_c[2], e_r G_c[3]) for (P_n, P_t, P_o, P~_r).
+"""
+from __future__ import annotations
+
+from .._jit import kernel
+
+# pair_i columns
+V_COL, V_NT, V_NR, V_NS = 0, 1, 2, 3
+# pair_f columns
+V_MU, V_ET, V_EO, V_ER, V_SP, V_R1 = 0, 1, 2, 3, 4, 5
+NVF = 9
+
+
+@kernel
+def velocity_rows(body, a, frame, bcol, bk, bJ, bp, G):
+    """G (npairs, 4, nv) of the closed pairs (module docstring). body (npairs, 2): each end's
+    body index or -1 (fixed); a (npairs, 2, 3) the points; frame (npairs, 3, 3) rows n, t, o;
+    per body its first column bcol, dofs bk, Jacobian bJ (nb, 6, kmax), origin bp (nb, 3)."""
+    G[:] = 0.0
+    for c in range(body.shape[0]):
+        for side in range(2):
+            b = body[c, side]
+            if b < 0:
+                continue
+            sgn = 1.0 if side == 1 else -1.0
+            r0 = a[c, side, 0] - bp[b, 0]
+            r1 = a[c, side, 1] - bp[b, 1]
+            r2 = a[c, side, 2] - bp[b, 2]
+            col, k = bcol[b], bk[b]
+            for row in range(3):
+                e0, e1, e2 = frame[c, row, 0], frame[c, row, 1], frame[c, row, 2]
+                m0 = r1 * e2 - r2 * e1          # r x e
+                m1 = r2 * e0 - r0 * e2
+                m2 = r0 * e1 - r1 * e0
+                for j in range(k):
+                    G[c, row, col + j] += sgn * (e0 * bJ[b, 3, j] + e1 * bJ[b, 4, j] + e2 * bJ[b, 5, j]
+                                                 + m0 * bJ[b, 0, j] + m1 * bJ[b, 1, j] + m2 * bJ[b, 2, j])
+            n0, n1, n2 = frame[c, 0, 0], frame[c, 0, 1], frame[c, 0, 2]
+            for j in range(k):
+                G[c, 3, col + j] += sgn * (n0 * bJ[b, 0, j] + n1 * bJ[b, 1, j] + n2 * bJ[b, 2, j])
+
+
+@kernel
+def stage2_rows(x, M, u, hf, scale, G, pi, pf, F, J, need_jac):
+    """F (n,) and, when need_jac, J (n, n) of (R5)-(R7) at x (module docstring)."""
+    nv = M.shape[0]
+    n = F.shape[0]
+    for i in range(n):
+        F[i] = 0.0
+    if need_jac:
+        for i in range(n):
+            for j in range(n):
+                J[i, j] = 0.0
+    for i in range(nv):
+        acc = -hf[i]
+        for j in range(nv):
+            acc += M[i, j] * (x[j] - u[j])
+            if need_jac:
+                J[i, j] = M[i, j]
+        F[i] = acc
+    for cp in range(pi.shape[0]):
+        c, nt, nr, ns = pi[cp, V_COL], pi[cp, V_NT], pi[cp, V_NR], pi[cp, V_NS]
+        m = 1 + nt + nr
+        s_p, e_r = pf[cp, V_SP], pf[cp, V_ER]
+        # (R5): the impulse columns n, t, (o), (torsion), and their rows of G
+        for q in range(m):
+            grow = q if q < 1 + nt else 3
+            w = s_p * (e_r if grow == 3 else 1.0)
+            r1 = pf[cp, V_R1 + grow]
+            dP = x[c + q] - r1
+            for i in range(nv):
+                g = G[cp, grow, i] * w
+                F[i] -= g * dP
+                if need_jac:
+                    J[i, c + q] = -g
+        # (R6)
+        acc = 0.0
+        for i in range(nv):
+            acc += G[cp, 0, i] * x[i]
+            if need_jac:
+                J[c, i] = G[cp, 0, i]
+        F[c] = acc
+        if ns == 0:
+            continue
+        # (R7), [GI] (21)-(22)
+        mu = pf[cp, V_MU]
+        p_n = x[c]
+        sigma = x[c + m]
+        cone = (mu * p_n) ** 2
+        for q in range(1, m):
+            grow = q if q < 1 + nt else 3
+            if grow == 3:
+                wgt, e2 = e_r, 1.0
+            else:
+                e = pf[cp, V_ET] if grow == 1 else pf[cp, V_EO]
+                wgt, e2 = e * e, e * e
+            slip = 0.0
+            for i in range(nv):
+                slip += G[cp, grow, i] * x[i]
+            r = c + q
+            F[r] = wgt * mu * p_n * slip + x[r] * sigma
+            cone -= x[r] * x[r] / e2
+            if need_jac:
+                for i in range(nv):
+                    J[r, i] = wgt * mu * p_n * G[cp, grow, i]
+                J[r, c] = wgt * mu * slip
+                J[r, r] = sigma
+                J[r, c + m] = x[r]
+                J[c + m, r] = -2.0 * x[r] / e2
+        F[c + m] = cone
+        if need_jac:
+            J[c + m, c] = 2.0 * mu * mu * p_n
+    for i in range(nv):
+        F[i] *= scale[i]
+        if need_jac:
+            for j in range(n):
+                J[i, j] *= scale[i]
