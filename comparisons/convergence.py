@@ -6,10 +6,16 @@ Each case is one smooth phase with an exact reference, measured at h = 4e-3, 2e-
             unstable middle axis); error of the body-frame angular velocity after 1 s against
             Euler's equations (DOP853, rtol 1e-13).
 * pendulum: a revolute pendulum (1 kg at 0.5 m) released at 1 rad; largest energy error in 1 s.
+* cart:     a pendulum (0.5 kg at 0.5 m, released at 0.8 rad) hinged at the centre of a 1 kg
+            ball (r = 0.1 m) that slides on frictionless ground: an articulated skeleton in
+            persistent contact; largest energy error in 1 s (its exact energy is constant).
 * rocking:  scenes/ellipsoid_rocking.py (rolling without slip); largest tilt error in 1 s against
             its exact 1-dof reference, and the rocking energy's largest relative error.
 * slide:    a ball (r = 0.1 m) sliding without spin at 2 m/s on mu = 0.3; error of its position
             at 0.15 s, inside the sliding phase (x = v0 t - mu g t^2 / 2).
+* example 2: [GI] Example 2 (scenes/sphere_on_two_spheres.py) over 4 s; largest error of its two
+            contact-loss times against an order-2 run at h = EXAMPLE2_REF_H. The events are read
+            at step times, so their error is O(h) for either order: printed, not a smooth phase.
 
 The order printed between two step sizes is log2(e(h) / e(h/2)). The figure goes to
 comparisons/out/convergence.png.
@@ -29,6 +35,7 @@ import implicit_contact as ic
 from implicit_contact.testing import dart_world, ground_box, revolute_pendulum
 
 STEPS = (4e-3, 2e-3, 1e-3, 5e-4)
+EXAMPLE2_REF_H = 2.5e-4                 # [s] the reference run of Example 2's events
 OUT = Path(__file__).resolve().parent / "out"
 
 INERTIA = np.array([0.1, 0.2, 0.35])    # [kg m^2], the top's principal moments
@@ -75,6 +82,60 @@ def pendulum_energy_error(order: int, h: float, duration: float = 1.0) -> float:
     return worst
 
 
+def cart_pendulum(h: float, q0: float = 0.8):
+    """(world, skeleton): the pendulum hinged at the centre of a ball on frictionless ground."""
+    import dartpy as dart
+    world = dart_world(h)
+    ground_box(world, mu=0.0)
+    skel = dart.dynamics.Skeleton("cart")
+    _, cart = skel.createFreeJointAndBodyNodePair()
+    cart.setMass(1.0)
+    cart.setMomentOfInertia(*([0.4 * BALL_R ** 2] * 3), 0.0, 0.0, 0.0)
+    node = cart.createShapeNode(dart.dynamics.SphereShape(BALL_R))
+    node.createCollisionAspect()
+    node.createDynamicsAspect().setFrictionCoeff(0.0)
+    joint, bob = skel.createRevoluteJointAndBodyNodePair(cart)
+    joint.setAxis([0.0, 1.0, 0.0])
+    bob.setMass(0.5)
+    bob.setMomentOfInertia(1e-3, 1e-3, 1e-3)
+    T = dart.math.Isometry3()
+    T.set_translation([0.0, 0.0, 0.5])
+    joint.setTransformFromChildBodyNode(T)
+    world.addSkeleton(skel)
+    skel.setPositions([0.0, 0.0, 0.0, 0.0, 0.0, BALL_R, q0])
+    return world, skel
+
+
+def cart_energy_error(order: int, h: float, duration: float = 1.0) -> float:
+    """Largest |E(t) - E(0)| [J] of the cart pendulum over duration."""
+    world, skel = cart_pendulum(h)
+    stepper = _stepper(world, order)
+    energy = lambda: skel.computeKineticEnergy() + skel.computePotentialEnergy()
+    e0, worst = energy(), 0.0
+    for _ in range(int(round(duration / h))):
+        stepper.step()
+        worst = max(worst, abs(energy() - e0))
+    return worst
+
+
+def example2_events(order: int, h: float) -> dict:
+    """The contact events of [GI] Example 2 (scenes.sphere_on_two_spheres.events) [s]."""
+    from scenes import sphere_on_two_spheres as s2
+    traj = s2.simulate(4.0, h, on_failure="retry", stepper_options=ic.StepperOptions(order=order))
+    return s2.events(traj)
+
+
+_EXAMPLE2_REF = {}
+
+
+def example2_event_error(order: int, h: float) -> float:
+    """max |t - t_ref| [s] of Example 2's two contact-loss times, t_ref from order 2 at EXAMPLE2_REF_H."""
+    if not _EXAMPLE2_REF:
+        _EXAMPLE2_REF.update(example2_events(2, EXAMPLE2_REF_H))
+    found = example2_events(order, h)
+    return max(abs(found[k] - _EXAMPLE2_REF[k]) for k in ("contact1_lost", "contact2_lost"))
+
+
 def rocking_errors(order: int, h: float, duration: float = 1.0) -> tuple[float, float]:
     """(largest tilt error [rad], largest relative rocking-energy error) of the rocking ellipsoid."""
     from scenes import ellipsoid_rocking as er
@@ -118,9 +179,11 @@ def slide_error(order: int, h: float, duration: float = 0.15) -> float:
 CASES = {
     "tumble": (lambda o, h: tumble_error(o, h), "omega error [rad/s]"),
     "pendulum": (lambda o, h: pendulum_energy_error(o, h), "energy error [J]"),
+    "cart": (lambda o, h: cart_energy_error(o, h), "energy error [J]"),
     "rocking": (lambda o, h: rocking_errors(o, h)[0], "tilt error [rad]"),
     "rocking energy": (lambda o, h: rocking_errors(o, h)[1], "relative energy error"),
     "slide": (lambda o, h: slide_error(o, h), "position error [m]"),
+    "example 2": (lambda o, h: example2_event_error(o, h), "event time error [s]"),
 }
 
 

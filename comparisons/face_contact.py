@@ -372,6 +372,14 @@ def add_body(world, body, name, welded=False):
 
 
 @dataclass
+ORDER_ENV = "IMPLICIT_CONTACT_CAMPAIGN_ORDER"   # --order, seen by the worker processes too
+
+
+def _stepper(world):
+    """The stepper of a run and of its ghosts: default options, of the order --order chose."""
+    return ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=int(os.environ.get(ORDER_ENV, "1"))))
+
+
 class Ghost:
     """A moving body's copy alone in a world of its own: its free flight from any state."""
     world: object
@@ -382,7 +390,7 @@ class Ghost:
     def of(cls, body, h):
         world = dart_world(h, G)
         skel, _ = add_body(world, body, "ghost")
-        return cls(world, skel, ic.ImplicitContactStepper(world))
+        return cls(world, skel, _stepper(world))
 
     def change(self, q, v, h, substeps):
         """dE~ of `substeps` free steps of h from (q, v)."""
@@ -498,7 +506,7 @@ def _run(config):
     if base is not None:
         solids.append(Solid.of(base, add_body(world, base, "base", welded=True)[1]))
     ghosts = [Ghost.of(b, config.h) for b in movers]
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = _stepper(world)
     scale_floor = sum(b.mass * G * bounding_radius(b) for b in movers)
     rec = _record(config, status="ok", lower=lower, placement=movers[0].placement, orientation=mode)
     iterations, times, excess = [], [], []
@@ -720,7 +728,9 @@ def main(argv=None):
     parser.add_argument("--kinds", default=",".join(KINDS), help="comma-separated body kinds")
     parser.add_argument("--budget", type=float, default=BUDGET, help="wall seconds per run")
     parser.add_argument("--repro", help="SEED,SCENARIO,KIND,H: one run in this process, its record printed")
+    parser.add_argument("--order", type=int, choices=(1, 2), default=1, help="StepperOptions.order of the runs")
     args = parser.parse_args(argv)
+    os.environ[ORDER_ENV] = str(args.order)
     if args.repro:
         seed, scenario, kind, h = args.repro.split(",")
         rec = run(Config(int(seed), scenario, kind, float(h), args.budget))

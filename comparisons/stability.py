@@ -446,9 +446,15 @@ def _box_inertia(m, size):
     return np.diag([m * (b * b + c * c), m * (a * a + c * c), m * (a * a + b * b)]) / 12.0
 
 
+ORDER_ENV = "IMPLICIT_CONTACT_STABILITY_ORDER"   # --order, seen by the worker processes too
+
+
 def _make_stepper(world, stepper, options=None):
     if stepper == IMPLICIT:
         import implicit_contact as ic
+        from dataclasses import replace
+        order = int(os.environ.get(ORDER_ENV, "1"))
+        options = replace(options or ic.StepperOptions(), order=order)
         return ic.ImplicitContactStepper(world, options=options)
     from comparisons.dart_native import DartNative
     return DartNative(world)
@@ -1472,7 +1478,10 @@ def main(argv=None) -> StudyResult:
     parser.add_argument("--workers", type=int, default=None, help="local processes (default os.cpu_count(); 0 = here)")
     parser.add_argument("--only", default="", help="run only cases whose 'family label stepper' contains this")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
+    parser.add_argument("--order", type=int, choices=(1, 2), default=1,
+                        help="the implicit stepper's StepperOptions.order (2: rattle.py; it refuses quasi-rigid layers)")
     args = parser.parse_args(argv)
+    os.environ[ORDER_ENV] = str(args.order)
     mode = "quick" if args.quick else "full" if args.full else "default"
     result = study(mode, args.out, max_workers=args.workers, only=args.only)
     print(text_table(result.table))

@@ -88,6 +88,9 @@ class ClosedPair:
     s_p: float
     R1: np.ndarray         # stage 1's (p_n, p_t, p_o, p~_r) in units of s_p (zeros where absent)
     sigma1: float
+    known: bool = False    # no unknowns: only its R1 enters (R5) (a patch's stage-1 point, see Stage2)
+    start_n: float = -1.0  # the start of its P_n (default 2 R1_n, the trapezoidal guess R2 = R1)
+    vertices: int = 0      # a patch's friction point: this many frictionless vertex pairs follow
 
     @property
     def friction(self) -> bool:
@@ -101,7 +104,14 @@ class Stage2:
 
     skeletons: per skeleton (M(q+) (k, k), u (k,), h/2 f(q+, u) (k,)), its columns contiguous in
     that order; bodies: per body (first column of its skeleton, DART's world Jacobian of its
-    origin at q+ (6, k), angular rows first, its origin p at q+)."""
+    origin at q+ (6, k), angular rows first, its origin p at q+).
+
+    A face on a face (two faceted pieces touching along a segment or an area) is, in stage 2, its
+    friction point (stage 1's equivalent contact point at q+, with its friction and torsion rows)
+    followed by one frictionless pair per vertex of its patch at q+ (rows/velocity.py), so that the
+    normal load can move within the patch (a single point cannot resist tipping at the velocity
+    level) while friction sees the patch's whole load; its stage-1 impulse R1 is a known pair
+    (known=True) whose W^T R1 moves into the right-hand side."""
 
     def __init__(self, skeletons, bodies, pairs):
         self.pairs = list(pairs)
@@ -118,7 +128,8 @@ class Stage2:
             self.M[c:c + k, c:c + k] = M
             self.u[c:c + k], self.hf[c:c + k] = u, hf
         self.scale = 1.0 / np.maximum(np.diag(self.M), 1e-300)
-        npairs, nb = len(self.pairs), len(bodies)
+        everything = self.pairs
+        npairs, nb = len(everything), len(bodies)
         kmax = max([1] + [J.shape[1] for _, J, _ in bodies])
         bcol = np.array([b[0] for b in bodies], np.int64)
         bk = np.array([b[1].shape[1] for b in bodies], np.int64)
@@ -126,21 +137,28 @@ class Stage2:
         bp = np.zeros((nb, 3))
         for i, (_, J, p) in enumerate(bodies):
             bJ[i, :, :J.shape[1]], bp[i] = J, p
-        ends = np.array([cp.bodies for cp in self.pairs], np.int64).reshape(npairs, 2)
-        a = np.array([cp.a for cp in self.pairs], float).reshape(npairs, 2, 3)
-        frame = np.array([(cp.n, cp.t, cp.o) for cp in self.pairs], float).reshape(npairs, 3, 3)
-        self.G = np.zeros((npairs, 4, at))
-        rv.velocity_rows(ends, a, frame, bcol, bk, bJ, bp, self.G)
-        self.pi = np.zeros((npairs, 4), np.int64)
+        ends = np.array([cp.bodies for cp in everything], np.int64).reshape(npairs, 2)
+        a = np.array([cp.a for cp in everything], float).reshape(npairs, 2, 3)
+        frame = np.array([(cp.n, cp.t, cp.o) for cp in everything], float).reshape(npairs, 3, 3)
+        G = np.zeros((npairs, 4, at))
+        rv.velocity_rows(ends, a, frame, bcol, bk, bJ, bp, G)
+        for cp, g in zip(everything, G):
+            if cp.known:      # (R5)'s - W^T (-R1) of a patch's stage-1 point: into h/2 f
+                self.hf -= cp.s_p * (g[0] * cp.R1[0] + g[1] * cp.R1[1] + g[2] * cp.R1[2] + cp.e_r * g[3] * cp.R1[3])
+        keep = [i for i, cp in enumerate(everything) if not cp.known]
+        self.pairs = [everything[i] for i in keep]
+        self.G = np.ascontiguousarray(G[keep]).reshape(len(keep), 4, at)
+        npairs = len(self.pairs)
+        self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
         lo, hi = [np.full(at, -np.inf)], [np.full(at, np.inf)]
         for k, cp in enumerate(self.pairs):
             nt = (cp.dim - 1) if cp.friction else 0
             nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
             ns = 1 if cp.friction else 0
-            self.pi[k] = (at, nt, nr, ns)
+            self.pi[k] = (at, nt, nr, ns, cp.vertices)
             self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1)
-            lo.append(np.r_[0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
+            lo.append(np.r_[-np.inf if cp.vertices else 0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
             hi.append(np.full(1 + nt + nr + ns, np.inf))
             at += 1 + nt + nr + ns
         self.n = at
@@ -160,9 +178,11 @@ class Stage2:
         stage 1's sigma."""
         x = np.zeros(self.n)
         x[:self.nv] = self.u + np.linalg.solve(self.M, self.hf)
-        for cp, (c, nt, nr, ns) in zip(self.pairs, self.pi):
+        for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + m] = 2.0 * np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
+            if cp.start_n >= 0.0:
+                x[c] = cp.start_n
             if ns:
                 x[c + m] = cp.sigma1
         return x
@@ -174,7 +194,7 @@ class Stage2:
     def impulses(self, x):
         """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""
         out = []
-        for (c, nt, nr, ns) in self.pi:
+        for (c, nt, nr, ns, _) in self.pi:
             P = np.zeros(4)
             P[0] = x[c]
             P[1:1 + nt] = x[c + 1:c + 1 + nt]

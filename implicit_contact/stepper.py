@@ -545,7 +545,9 @@ class ImplicitContactStepper:
         if pairs:
             att = self._specs(pairs, state, {})
             for spec in att.specs:
-                spec.start_frame = self._start_frame(spec, state)
+                # a face on a face takes stage 1's impulse at its equivalent contact point at q+,
+                # as [GI]: with the frame at l that point would be undetermined (rattle.py)
+                spec.start_frame = None if landing.faceted_pair(spec) else self._start_frame(spec, state)
             problem, result = self._solve_step(att, state)
             if not result.success:
                 return self._failure(problem, result, att.specs, t0, h)
@@ -628,6 +630,11 @@ class ImplicitContactStepper:
                                 _pose_dim(poses[second.body], d))
             a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
             normal = np.asarray(res.normal, float)
+            if res.distance <= self.options.contact_tolerance:
+                # a face on a face touches along a patch: the point nearest the centres, as _seed_pair
+                P1, P2 = (fm.Pose(*_pose_dim(poses[o.body], d), np.zeros(3)) for o in (first, second))
+                a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal / np.linalg.norm(normal),
+                                               self.options.contact_tolerance)
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
         pad = lambda x: np.r_[x, np.zeros(3 - len(x))]
@@ -668,24 +675,57 @@ class ImplicitContactStepper:
             if sl.p_r >= 0:
                 R1[3] = z[sl.p_r]
             fr = spec.friction if spec.with_friction else Friction(0.0)
-            cps.append(rattle.ClosedPair(tuple(ends), (rep[k, rc.R_A1:rc.R_A1 + 3].copy(), rep[k, rc.R_A2:rc.R_A2 + 3].copy()),
-                                         rep[k, rc.R_N:rc.R_N + 3].copy(), rep[k, rc.R_T:rc.R_T + 3].copy(),
-                                         rep[k, rc.R_O:rc.R_O + 3].copy(), spec.dim, fr.mu if sl.sigma >= 0 else 0.0,
-                                         fr.e_t, fr.e_o, fr.e_r if sl.p_r >= 0 else 0.0, spec.impulse_scale, R1,
-                                         float(z[sl.sigma]) if sl.sigma >= 0 else 0.0))
-            closed.append(k)
+            n, t, o = (rep[k, c:c + 3].copy() for c in (rc.R_N, rc.R_T, rc.R_O))
+            mu, e_r = (fr.mu if sl.sigma >= 0 else 0.0), (fr.e_r if sl.p_r >= 0 else 0.0)
+            sigma = float(z[sl.sigma]) if sl.sigma >= 0 else 0.0
+            stage1 = rattle.ClosedPair(tuple(ends), (rep[k, rc.R_A1:rc.R_A1 + 3].copy(), rep[k, rc.R_A2:rc.R_A2 + 3].copy()),
+                                       n, t, o, spec.dim, mu, fr.e_t, fr.e_o, e_r, spec.impulse_scale, R1, sigma)
+            X = self._patch_vertices(spec, n) if landing.faceted_pair(spec) else None
+            if X is None:
+                cps.append(stage1)
+                closed.append((k, 1))
+                continue
+            # a face on a face: its friction point and its patch's vertices at q+ (rattle.Stage2)
+            cps.append(replace(stage1, known=True, R1=np.r_[R1[0], 0.0, 0.0, 0.0]))   # its normal part
+            cps.append(replace(stage1, vertices=len(X), R1=np.r_[0.0, R1[1:]]))          # and its friction
+            for x in X:
+                cps.append(replace(stage1, a=(x, x), mu=0.0, e_r=0.0, R1=np.zeros(4), start_n=2.0 * p_n / len(X)))
+            closed.append((k, 1 + len(X)))
         skeletons = []
         for s in att.involved:
             k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
             skeletons.append((w.MB[mo:mo + k * k].reshape(k, k).copy(), u[s], hf[o:o + k]))
         return rattle.Stage2(skeletons, bodies, cps), closed
 
+    def _patch_vertices(self, spec, n):
+        """The vertices (m, 3) of a faceted pair's patch at q+ (DART's poses now) on its contact
+        plane of normal n, or None if it is a point."""
+        first, second = spec.objects
+        poses = []
+        for o in (first, second):
+            T = self.scene.bodies[o.body].body_node.getTransform().matrix()
+            poses.append((np.ascontiguousarray(T[:3, :3]), T[:3, 3].copy()))
+        A, B, C, _ = contact_patch.workspace(first.face, second.face)
+        origin = np.zeros(3)
+        m = contact_patch.overlap_polygon(first.face, first.face_half, *poses[0], second.face, second.face_half,
+                                          *poses[1], n, contact_patch.band(first.piece, second.piece), A, B, C, origin)
+        if m < 2:
+            return None
+        t, o = contact_patch.plane_basis(n)
+        return origin + C[:m, :1] * t + C[:m, 1:2] * o
+
     def _split_contacts(self, contacts, closed, stage2, x):
         """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2)."""
         contacts = list(contacts)
         v = x[:stage2.nv]
-        for k, cp, G, P in zip(closed, stage2.pairs, stage2.G, stage2.impulses(x)):
+        P_all = stage2.impulses(x)
+        at = 0
+        for k, count in closed:
+            cps, Gs, Ps = stage2.pairs[at:at + count], stage2.G[at:at + count], P_all[at:at + count]
+            at += count
+            cp, G = cps[0], Gs[0]
             slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
+            P = Ps[0]             # a patch's point: P_n is its vertices' sum
             contacts[k] = replace(contacts[k], p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2],
                                   p_r=cp.s_p * cp.e_r * P[3], slip=slip, p_core=cp.s_p * P[0])
         return tuple(contacts)

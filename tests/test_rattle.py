@@ -189,3 +189,11 @@ def test_stage_2_rows_are_point_velocities_and_their_jacobian_matches_central_di
     J_fd = np.column_stack([(stage.fun(x + EPS_FD * e) - stage.fun(x - EPS_FD * e)) / (2 * EPS_FD)
                             for e in np.eye(stage.n)])
     assert np.max(np.abs(J - J_fd) / np.maximum(1.0, np.abs(J_fd))) <= ATOL_FD
+
+
+def test_order_2_keeps_an_articulated_skeleton_in_contact_to_second_order():
+    """A pendulum hinged at the centre of a ball sliding on frictionless ground
+    (comparisons/convergence.py): its energy error is second order in h."""
+    err = [cv.cart_energy_error(2, h) for h in (4e-3, 2e-3)]
+    assert _observed_order(err) >= ORDER_2
+    assert err[1] < 0.01 * cv.cart_energy_error(1, 2e-3)

@@ -18,13 +18,19 @@ s_p, R1_n, R1_t, R1_o, R1~_r). Rows:
     mu^2 P_n^2 - P_t^2/e_t^2 - P_o^2/e_o^2 - P~_r^2  complementary to sigma >= 0   [GI] (22)
 
 with W_c's columns (G_c[0], G_c[1], G_c[2], e_r G_c[3]) for (P_n, P_t, P_o, P~_r).
+
+A patch (a face on a face; pi's V_NVERT = m > 0) is its friction point c followed by its m
+vertices, frictionless pairs whose normal impulses carry the patch's normal load (so that the
+load can move within the patch). The point's P_n is then their sum, the row P_n - sum_i P_n,i = 0
+in place of (R6), and its own normal column is not applied; its friction rows see that P_n.
 """
 from __future__ import annotations
 
 from .._jit import kernel
 
 # pair_i columns
-V_COL, V_NT, V_NR, V_NS = 0, 1, 2, 3
+V_COL, V_NT, V_NR, V_NS, V_NVERT = 0, 1, 2, 3, 4
+NVI = 5
 # pair_f columns
 V_MU, V_ET, V_EO, V_ER, V_SP, V_R1 = 0, 1, 2, 3, 4, 5
 NVF = 9
@@ -79,10 +85,12 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, F, J, need_jac):
         F[i] = acc
     for cp in range(pi.shape[0]):
         c, nt, nr, ns = pi[cp, V_COL], pi[cp, V_NT], pi[cp, V_NR], pi[cp, V_NS]
+        nvert = pi[cp, V_NVERT]
         m = 1 + nt + nr
         s_p, e_r = pf[cp, V_SP], pf[cp, V_ER]
-        # (R5): the impulse columns n, t, (o), (torsion), and their rows of G
-        for q in range(m):
+        # (R5): the impulse columns n, t, (o), (torsion), and their rows of G (a patch's point:
+        # no normal column, its vertices carry the load)
+        for q in range(1 if nvert > 0 else 0, m):
             grow = q if q < 1 + nt else 3
             w = s_p * (e_r if grow == 3 else 1.0)
             r1 = pf[cp, V_R1 + grow]
@@ -92,13 +100,24 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, F, J, need_jac):
                 F[i] -= g * dP
                 if need_jac:
                     J[i, c + q] = -g
-        # (R6)
-        acc = 0.0
-        for i in range(nv):
-            acc += G[cp, 0, i] * x[i]
+        if nvert > 0:
+            # a patch's point: P_n = the sum of its vertices' normal impulses
+            acc = x[c]
             if need_jac:
-                J[c, i] = G[cp, 0, i]
-        F[c] = acc
+                J[c, c] = 1.0
+            for k in range(cp + 1, cp + 1 + nvert):
+                acc -= x[pi[k, V_COL]]
+                if need_jac:
+                    J[c, pi[k, V_COL]] = -1.0
+            F[c] = acc
+        else:
+            # (R6)
+            acc = 0.0
+            for i in range(nv):
+                acc += G[cp, 0, i] * x[i]
+                if need_jac:
+                    J[c, i] = G[cp, 0, i]
+            F[c] = acc
         if ns == 0:
             continue
         # (R7), [GI] (21)-(22)
