@@ -371,7 +371,6 @@ def add_body(world, body, name, welded=False):
     return skel, shape_node
 
 
-@dataclass
 ORDER_ENV = "IMPLICIT_CONTACT_CAMPAIGN_ORDER"   # --order, seen by the worker processes too
 
 
@@ -380,6 +379,7 @@ def _stepper(world):
     return ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=int(os.environ.get(ORDER_ENV, "1"))))
 
 
+@dataclass
 class Ghost:
     """A moving body's copy alone in a world of its own: its free flight from any state."""
     world: object

@@ -113,7 +113,9 @@ class Stage2:
     level) while friction sees the patch's whole load; its stage-1 impulse R1 is a known pair
     (known=True) whose W^T R1 moves into the right-hand side."""
 
-    def __init__(self, skeletons, bodies, pairs):
+    def __init__(self, skeletons, bodies, pairs, joints=()):
+        """joints: per joint row (g over all of x's velocity columns (nv,), unit, lower, upper,
+        stage 1's generalized impulse along g) (rows/velocity.py)."""
         self.pairs = list(pairs)
         cols, at = [], 0
         for M, _, _ in skeletons:
@@ -147,7 +149,7 @@ class Stage2:
                 self.hf -= cp.s_p * (g[0] * cp.R1[0] + g[1] * cp.R1[1] + g[2] * cp.R1[2] + cp.e_r * g[3] * cp.R1[3])
         keep = [i for i, cp in enumerate(everything) if not cp.known]
         self.pairs = [everything[i] for i in keep]
-        self.G = np.ascontiguousarray(G[keep]).reshape(len(keep), 4, at)
+        self.G = np.ascontiguousarray(G[keep]).reshape(len(keep), 4, self.nv)
         npairs = len(self.pairs)
         self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
@@ -161,16 +163,26 @@ class Stage2:
             lo.append(np.r_[-np.inf if cp.vertices else 0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
             hi.append(np.full(1 + nt + nr + ns, np.inf))
             at += 1 + nt + nr + ns
+        nj = len(joints)
+        self.jg = np.array([j[0] for j in joints], float).reshape(nj, self.nv)
+        self.ju = np.array([j[1] for j in joints], float)
+        self.jk = np.array([j[4] for j in joints], float)
+        self.jcol = np.arange(at, at + nj, dtype=np.int64)
+        lo.append(np.array([j[2] for j in joints], float))
+        hi.append(np.array([j[3] for j in joints], float))
+        at += nj
         self.n = at
         self.lower, self.upper = np.concatenate(lo), np.concatenate(hi)
         self._F, self._J = np.zeros(at), np.zeros((at, at))
 
     def fun(self, x):
-        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self._F, self._J, False)
+        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self.jg, self.ju, self.jk,
+                       self.jcol, self._F, self._J, False)
         return self._F.copy()
 
     def jac(self, x):
-        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self._F, self._J, True)
+        rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self.jg, self.ju, self.jk,
+                       self.jcol, self._F, self._J, True)
         return self._J.copy()
 
     def start(self) -> np.ndarray:
@@ -185,11 +197,61 @@ class Stage2:
                 x[c] = cp.start_n
             if ns:
                 x[c + m] = cp.sigma1
+        for c, u_r, k_r in zip(self.jcol, self.ju, self.jk):
+            x[c] = 2.0 * k_r / u_r if u_r > 0.0 else 0.0
         return x
 
-    def solve(self, options: ncp.SolverOptions):
-        """ncp.solve_mcp on (R5)-(R7) from start(); returns its result (x: v+, then the impulses)."""
-        return ncp.solve_mcp(self.fun, self.jac, self.start(), self.lower, self.upper, options)
+    def cold_start(self) -> np.ndarray:
+        """start() with zero impulses (sigma kept)."""
+        x = self.start()
+        for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
+            x[c:c + 1 + nt + nr] = 0.0
+        x[self.jcol] = 0.0
+        return x
+
+    def solve(self, options: ncp.SolverOptions, converged_at: float | None = None):
+        """ncp.solve_mcp on (R5)-(R7); its starts and recoveries, in order, each tried when the
+        one before did not converge (measured: boxes and prisms landing on a face or a corner in
+        the face-contact campaign, whose stage 2 stopped at the iteration cap from start()):
+          1. start(): the trapezoidal guess;
+          2. cold_start(): zero impulses;
+          3. proximal(): the impulse rows damped by eps (x - x_k), eps = 1, 0.1, 0.01, then
+             undamped from there (two captured stage 2s of --repro 1568136232,land,box,
+             0.000174883..., a face and a corner landing, converged so after both starts had
+             stopped at 50 iterations; the corner's impulses ~1e3 s_p reach a natural residual
+             of 9e-13, round-off, within the solver's tolerance).
+        Returns the first result that converges (or whose residual is at most converged_at), else
+        the one with the smallest residual."""
+        best = None
+        for attempt in (self.start, self.cold_start, None):
+            if attempt is None:
+                res = self.proximal(options)
+            else:
+                res = ncp.solve_mcp(self.fun, self.jac, attempt(), self.lower, self.upper, options)
+            if res.success or (converged_at is not None and res.residual <= converged_at):
+                return res
+            if best is None or res.residual < best.residual:
+                best = res
+        return best
+
+    def proximal(self, options, steps=(1.0, 1e-1, 1e-2), outer=100):
+        """The proximal-point recovery of solve(): for each eps, up to `outer` solves of
+        F(x) + eps D (x - x_k) = 0 (D: 1 on the impulse unknowns) from and around x_k, then the
+        undamped problem from the last x_k; returns that last solve's result."""
+        mask = np.zeros(self.n)
+        mask[self.nv:] = 1.0
+        x = self.cold_start()
+        for eps in steps:
+            for _ in range(outer):
+                xk = x.copy()
+                res = ncp.solve_mcp(lambda z: self.fun(z) + eps * mask * (z - xk),
+                                    lambda z: self.jac(z) + eps * np.diag(mask), x, self.lower, self.upper, options)
+                if not np.all(np.isfinite(res.x)):
+                    break
+                x = res.x
+                if np.max(np.abs(x - xk)) <= 1e-9 * (1.0 + np.max(np.abs(x))):
+                    break
+        return ncp.solve_mcp(self.fun, self.jac, x, self.lower, self.upper, options)
 
     def impulses(self, x):
         """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""

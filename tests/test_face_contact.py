@@ -15,6 +15,12 @@ STATIC = 1e-9          # [m], [N s] statics from the solver's residual 1e-10 on 
 SETTLE = 30            # steps before a resting box is measured (it starts at rest, on its face)
 
 
+@pytest.fixture(params=[1, 2], ids=["order1", "order2"])
+def order(request):
+    """Each closed form holds for [GI]'s step and for the split step of rattle.py."""
+    return request.param
+
+
 def _box(world, size, mass, mu, position, rotation=None):
     """A free DART BoxShape body of uniform inertia on the world's ground."""
     skel = dart.dynamics.Skeleton("box")
@@ -34,7 +40,7 @@ def _box(world, size, mass, mu, position, rotation=None):
     return skel, body
 
 
-def test_off_centre_load_puts_the_ecp_at_the_centre_of_pressure():
+def test_off_centre_load_puts_the_ecp_at_the_centre_of_pressure(order):
     """A vertical load F at (x0, y0) on the top face of a box resting on its bottom face: the
     contact point is the centre of pressure F (x0, y0) / (m g + F) and p_n = (m g + F) h."""
     h, m, F, x0, y0 = 0.01, 2.0, 30.0, 0.15, -0.08
@@ -42,7 +48,7 @@ def test_off_centre_load_puts_the_ecp_at_the_centre_of_pressure():
     world = dart_world(h)
     ground_box(world, mu=0.5)
     skel, body = _box(world, size, m, 0.5, [0.0, 0.0, size[2] / 2])
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     for _ in range(SETTLE):
         body.setExtForce([0.0, 0.0, -F], [x0, y0, size[2] / 2], False, True)
         report = stepper.step()
@@ -54,7 +60,7 @@ def test_off_centre_load_puts_the_ecp_at_the_centre_of_pressure():
 
 
 @pytest.mark.parametrize("ratio, tips", [(0.97, False), (1.03, True)])
-def test_box_pushed_at_height_tips_over_its_edge_at_the_static_force(ratio, tips):
+def test_box_pushed_at_height_tips_over_its_edge_at_the_static_force(ratio, tips, order):
     """A horizontal push F at height z above the ground on a box of width w: it tips about its
     leading edge once F z > m g w / 2 and not below (mu high enough that it never slides)."""
     h, m, mu = 0.005, 1.0, 2.0
@@ -63,7 +69,7 @@ def test_box_pushed_at_height_tips_over_its_edge_at_the_static_force(ratio, tips
     world = dart_world(h)
     ground_box(world, mu=mu)
     skel, body = _box(world, (w, depth, H), m, mu, [0.0, 0.0, H / 2])
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     for _ in range(80):                                   # 0.4 s
         body.setExtForce([F, 0.0, 0.0], [0.0, 0.0, z - H / 2], False, True)
         stepper.step()
@@ -79,7 +85,7 @@ def test_box_pushed_at_height_tips_over_its_edge_at_the_static_force(ratio, tips
 
 
 @pytest.mark.parametrize("tan_theta, slides", [(0.45, False), (0.7, True)])
-def test_block_on_an_incline_sticks_below_mu_and_slides_above_with_coulomb_acceleration(tan_theta, slides):
+def test_block_on_an_incline_sticks_below_mu_and_slides_above_with_coulomb_acceleration(tan_theta, slides, order):
     """Gravity tilted by theta about y over a flat ground box (the incline's frame): a flat block
     with mu = 0.5 stays at rest for tan theta < mu, else slides down with acceleration
     g (sin theta - mu cos theta); a constant acceleration is exact for the first-order scheme."""
@@ -89,7 +95,7 @@ def test_block_on_an_incline_sticks_below_mu_and_slides_above_with_coulomb_accel
     world.setGravity([G * math.sin(theta), 0.0, -G * math.cos(theta)])
     ground_box(world, mu=mu)
     skel, _ = _box(world, (0.4, 0.4, 0.05), m, mu, [0.0, 0.0, 0.025])
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     for _ in range(steps):
         stepper.step()
     v = skel.getVelocities()
@@ -102,7 +108,7 @@ def test_block_on_an_incline_sticks_below_mu_and_slides_above_with_coulomb_accel
         assert np.linalg.norm(skel.getPositions()[3:5]) < STATIC
 
 
-def test_square_box_spinning_flat_stops_at_the_patch_torsion_closed_form():
+def test_square_box_spinning_flat_stops_at_the_patch_torsion_closed_form(order):
     """A square face of side a spinning at omega0 on the ground, no e_r given: uniform pressure
     gives the friction moment mu m g a (sqrt 2 + ln(1 + sqrt 2)) / 6, so omega falls linearly and
     the box stops at t = omega0 I_zz / that moment, and not before."""
@@ -111,7 +117,7 @@ def test_square_box_spinning_flat_stops_at_the_patch_torsion_closed_form():
     ground_box(world, mu=mu)
     skel, _ = _box(world, (a, a, 0.1), m, mu, [0.0, 0.0, 0.05])
     skel.setVelocities([0.0, 0.0, w0, 0.0, 0.0, 0.0])
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     moment = mu * m * G * a * (math.sqrt(2.0) + math.log(1.0 + math.sqrt(2.0))) / 6.0
     izz = m * a * a / 6.0
     t_stop = w0 * izz / moment
@@ -135,7 +141,7 @@ SLAPS = {
 
 
 @pytest.mark.parametrize("name", list(SLAPS))
-def test_box_started_down_flat_with_spin_lands_in_one_step(name):
+def test_box_started_down_flat_with_spin_lands_in_one_step(name, order):
     """A box resting on its face with a downward speed of 2-5 m/s and a spin about a tilted
     axis: the impact is inelastic and the equivalent contact point moves to where the normal
     impulse's moment stops the face's rotation, so the box ends its first step flat, at rest
@@ -147,7 +153,7 @@ def test_box_started_down_flat_with_spin_lands_in_one_step(name):
     skel, body = _box(world, size, m, 0.5, [0.0, 0.0, size[2] / 2])
     skel.setVelocities(np.r_[w, v])
     energy = skel.computeKineticEnergy() + skel.computePotentialEnergy()
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     report = stepper.step()
     assert report.success and report.substeps == 1
     vel = skel.getVelocities()

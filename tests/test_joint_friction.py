@@ -24,6 +24,12 @@ DART_AGREEMENT = 5e-11     # rad, over the 1 s runs
 STICK_TOL = 1e-12          # a stuck dof's velocity [rad/s]
 
 
+
+@pytest.fixture(params=[1, 2], ids=["order1", "order2"])
+def order(request):
+    """The test holds for [GI]'s step and for the split step of rattle.py (StepperOptions.order)."""
+    return request.param
+
 def _wheel(h, f, w0, inertia):
     """A wheel on a vertical revolute axis: no torque but the joint friction f."""
     world = dart_world(h, G)
@@ -44,10 +50,10 @@ def _pendulum(h, f, q0, m=1.0, length=0.5, shape=False):
     return world, revolute_pendulum(world, q0, m, length, friction=f, bob_radius=0.05 if shape else None)
 
 
-def test_spinning_wheel_decelerates_at_f_over_I_and_stops_for_good():
+def test_spinning_wheel_decelerates_at_f_over_I_and_stops_for_good(order):
     h, f, w0, inertia = 1e-3, 0.5, 2.0, 0.2
     world, wheel = _wheel(h, f, w0, inertia)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     t_stop = inertia * w0 / f                          # 0.8 s
     n_stop = int(round(t_stop / h))
     for n in range(1, int(1.5 * n_stop)):
@@ -104,7 +110,7 @@ def test_swinging_pendulum_follows_dart_native(f):
         assert np.abs(runs[1] - 1.0).max() < 1e-12
 
 
-def test_joint_friction_and_contact_in_one_mcp():
+def test_joint_friction_and_contact_in_one_mcp(order):
     """A pendulum bob (r = 0.05) swings into a frictionless ground and comes to rest on it, at
     the angle where it touches (cos q = 0.7): then the moments about the axis balance, the
     contact's p_n l sin q and the joint friction impulse against gravity's h m g l sin q (how
@@ -112,7 +118,7 @@ def test_joint_friction_and_contact_in_one_mcp():
     h, m, length, f = 1e-3, 1.0, 0.5, 0.5
     world, pend = _pendulum(h, f, 1.2, m=m, length=length, shape=True)
     gb = ground_box(world, top=-0.5 + 0.1)              # 0.1 m above the hanging bob's lowest point
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     stepper.set_pair_friction(pend.getBodyNode(0), gb, Friction(mu=0.0))
     touched = False
     for _ in range(1500):

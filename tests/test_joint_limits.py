@@ -20,6 +20,12 @@ BALL_AT_REST = 1e-3        # |v_x| of the ball after the blow [m/s] (its fall ti
 LIMIT_TOL = 1e-12          # how far past a held limit q may end [rad] (solver tolerance, far below it)
 
 
+
+@pytest.fixture(params=[1, 2], ids=["order1", "order2"])
+def order(request):
+    """The test holds for [GI]'s step and for the split step of rattle.py (StepperOptions.order)."""
+    return request.param
+
 def _pendulum(q0, lower=-np.inf, upper=np.inf, bob_radius=None, mass=M):
     """A bob of mass m at LENGTH below a horizontal revolute axis (y) at the origin; positive q
     swings it towards -x."""
@@ -27,10 +33,10 @@ def _pendulum(q0, lower=-np.inf, upper=np.inf, bob_radius=None, mass=M):
     return world, revolute_pendulum(world, q0, mass, LENGTH, limits=(lower, upper), bob_radius=bob_radius)
 
 
-def test_pendulum_falls_onto_its_lower_limit_and_rests_with_the_static_impulse():
+def test_pendulum_falls_onto_its_lower_limit_and_rests_with_the_static_impulse(order):
     lower = 0.5
     world, pend = _pendulum(1.0, lower=lower, upper=2.0)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     q_prev, v_prev = 1.0, 0.0
     rows_seen = False
     for _ in range(1000):
@@ -69,7 +75,7 @@ def test_limit_stop_follows_dart_native():
     assert abs(runs[0][-1] - 0.5) < 1e-9 and abs(runs[1][-1] - 0.5) < LIMIT_TOL
 
 
-def test_struck_pendulum_is_held_by_a_limit_its_first_solve_left_out():
+def test_struck_pendulum_is_held_by_a_limit_its_first_solve_left_out(order):
     """A hanging pendulum (at rest, 1 mrad from its upper limit: no row) is struck by a ball at
     5 m/s: the first solve swings it past the limit, the limit's row is added and the step solved
     again; the stop holds the bob, so the rigid, inelastic impact leaves the ball at rest along x
@@ -87,7 +93,7 @@ def test_struck_pendulum_is_held_by_a_limit_its_first_solve_left_out():
     ball.setPositions([0.0, 0.0, 0.0, 0.1 + 0.012, 0.0, -LENGTH])     # 12 mm from the bob
     ball.setVelocities([0.0, 0.0, 0.0, -5.0, 0.0, 0.0])
     world.addSkeleton(ball)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     struck = None
     for n in range(20):
         report = stepper.step()

@@ -41,6 +41,12 @@ GRIPPER = f"""<?xml version="1.0"?>
 """
 
 
+
+@pytest.fixture(params=[1, 2], ids=["order1", "order2"])
+def order(request):
+    """The test holds for [GI]'s step and for the split step of rattle.py (StepperOptions.order)."""
+    return request.param
+
 def _world():
     """The gripper, its palm welded, without gravity."""
     world = dart_world(H, gravity=0.0)
@@ -59,12 +65,12 @@ def test_urdf_mimic_relation_is_read_and_required():
         ic.ImplicitContactStepper(world, mimic={**ic.urdf_mimic_joints(GRIPPER), "nowhere": ("left", 1.0, 0.0)})
 
 
-def test_mimic_pair_moves_as_one_body_under_a_force_on_the_leader():
+def test_mimic_pair_moves_as_one_body_under_a_force_on_the_leader(order):
     """A force F on the leader accelerates both pads: with q_f = -q_l their kinetic energy is
     (m_l + m_f) v^2 / 2, so a = F / (m_l + m_f); the follower mirrors the leader at every step and
     the relation's impulse on the follower is m_f times its velocity change."""
     world, gripper = _world()
-    stepper = ic.ImplicitContactStepper(world, mimic=ic.urdf_mimic_joints(GRIPPER))
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order), mimic=ic.urdf_mimic_joints(GRIPPER))
     left, right = gripper.getDof("left").getIndexInSkeleton(), gripper.getDof("right").getIndexInSkeleton()
     F = 2.0
     a = F / (M_LEADER + M_FOLLOWER)
@@ -79,7 +85,7 @@ def test_mimic_pair_moves_as_one_body_under_a_force_on_the_leader():
         assert stepper.joint_mimic_impulse(gripper)[right] == pytest.approx(-M_FOLLOWER * a * H, rel=1e-9)
 
 
-def test_mimic_fingers_squeeze_a_ball_symmetrically():
+def test_mimic_fingers_squeeze_a_ball_symmetrically(order):
     """The leader, pushed closed, squeezes a free ball between the pads: the mimic coupling makes
     the squeeze symmetric, so the ball stays centred and both pads press it equally (the
     follower's push comes from the relation's impulse, not from a force of its own)."""
@@ -91,7 +97,7 @@ def test_mimic_fingers_squeeze_a_ball_symmetrically():
     body.setMass(0.05)
     body.setMomentOfInertia(*(3 * [0.4 * 0.05 * 0.03 ** 2]))
     world.addSkeleton(ball)
-    stepper = ic.ImplicitContactStepper(world, mimic=ic.urdf_mimic_joints(GRIPPER))
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order), mimic=ic.urdf_mimic_joints(GRIPPER))
     left = gripper.getDof("left").getIndexInSkeleton()
     for _ in range(400):
         forces = np.zeros(gripper.getNumDofs())

@@ -112,10 +112,17 @@ def test_order_2_slide_to_roll_ends_at_five_sevenths():
     assert abs(v[1] * 0.1 - v[3]) < 1e-6                          # rolling: omega_y r = v_x
 
 
-def test_order_2_refuses_joint_friction_with_a_sentence():
+def test_order_2_refuses_quasi_rigid_layers_and_springs_with_a_sentence():
     world = dart_world(0.01)
-    revolute_pendulum(world, 0.5, friction=0.1)
-    with pytest.raises(ValueError, match=r"order=2\) does not support Coulomb joint friction"):
+    ground = ground_box(world)
+    ic.attach(ground, shp.HalfSpace([0, 0, 1], 0.0), compliance=ic.Compliance(1e4, 10.0, 0.01))
+    cv.ball(world, 0.3, 0.2, [0.0, 0.0, 0.0])
+    with pytest.raises(ValueError, match=r"order=2\) does not support quasi-rigid layers"):
+        ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=2))
+    world = dart_world(0.01)
+    skel = revolute_pendulum(world, 0.5)
+    skel.getJoint(0).setSpringStiffness(0, 10.0)
+    with pytest.raises(ValueError, match="joint springs or dampers"):
         ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=2))
     with pytest.raises(ValueError, match="order must be 1"):
         ic.StepperOptions(order=3)

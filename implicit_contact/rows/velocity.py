@@ -19,6 +19,14 @@ s_p, R1_n, R1_t, R1_o, R1~_r). Rows:
 
 with W_c's columns (G_c[0], G_c[1], G_c[2], e_r G_c[3]) for (P_n, P_t, P_o, P~_r).
 
+Joint rows (joint_rows.py) at the velocity level, after the pairs: row r with direction g_r
+(nv,), unit u_r and stage 1's generalized impulse k_r along g_r:
+
+    g_r . v+   complementary to lambda_r in its bounds;   (R5) gets - g_r (u_r lambda_r - k_r)
+
+(Coulomb friction: the total impulse u_r lambda_r within h f and opposite the end velocity; a
+limit closed at q+ and a mimic relation: the end velocity along g_r is held at 0, resp. >= 0.)
+
 A patch (a face on a face; pi's V_NVERT = m > 0) is its friction point c followed by its m
 vertices, frictionless pairs whose normal impulses carry the patch's normal load (so that the
 load can move within the patch). The point's P_n is then their sum, the row P_n - sum_i P_n,i = 0
@@ -66,8 +74,8 @@ def velocity_rows(body, a, frame, bcol, bk, bJ, bp, G):
 
 
 @kernel
-def stage2_rows(x, M, u, hf, scale, G, pi, pf, F, J, need_jac):
-    """F (n,) and, when need_jac, J (n, n) of (R5)-(R7) at x (module docstring)."""
+def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac):
+    """F (n,) and, when need_jac, J (n, n) of (R5)-(R7) and the joint rows at x (module docstring)."""
     nv = M.shape[0]
     n = F.shape[0]
     for i in range(n):
@@ -148,6 +156,17 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, F, J, need_jac):
         F[c + m] = cone
         if need_jac:
             J[c + m, c] = 2.0 * mu * mu * p_n
+    for r in range(jg.shape[0]):
+        c = jcol[r]
+        acc = 0.0
+        for i in range(nv):
+            g = jg[r, i]
+            acc += g * x[i]
+            F[i] -= g * (ju[r] * x[c] - jk[r])
+            if need_jac:
+                J[c, i] = g
+                J[i, c] = -g * ju[r]
+        F[c] = acc
     for i in range(nv):
         F[i] *= scale[i]
         if need_jac:
