@@ -69,17 +69,21 @@ def tumble_error(order: int, h: float, duration: float = 1.0) -> float:
     return float(np.max(np.abs(R.T @ np.array(skel.getVelocities())[:3] - exact)))
 
 
-def pendulum_energy_error(order: int, h: float, duration: float = 1.0) -> float:
-    """Largest |E(t) - E(0)| [J] of the pendulum over duration."""
-    world = dart_world(h)
-    skel = revolute_pendulum(world, 1.0)
+def _energy_error(world, skel, order: int, duration: float) -> float:
+    """Largest |E(t) - E(0)| [J] of one skeleton stepped for duration."""
     stepper = _stepper(world, order)
     energy = lambda: skel.computeKineticEnergy() + skel.computePotentialEnergy()
     e0, worst = energy(), 0.0
-    for _ in range(int(round(duration / h))):
+    for _ in range(int(round(duration / world.getTimeStep()))):
         stepper.step()
         worst = max(worst, abs(energy() - e0))
     return worst
+
+
+def pendulum_energy_error(order: int, h: float, duration: float = 1.0) -> float:
+    """Largest |E(t) - E(0)| [J] of the pendulum over duration."""
+    world = dart_world(h)
+    return _energy_error(world, revolute_pendulum(world, 1.0), order, duration)
 
 
 def cart_pendulum(h: float, q0: float = 0.8):
@@ -108,14 +112,7 @@ def cart_pendulum(h: float, q0: float = 0.8):
 
 def cart_energy_error(order: int, h: float, duration: float = 1.0) -> float:
     """Largest |E(t) - E(0)| [J] of the cart pendulum over duration."""
-    world, skel = cart_pendulum(h)
-    stepper = _stepper(world, order)
-    energy = lambda: skel.computeKineticEnergy() + skel.computePotentialEnergy()
-    e0, worst = energy(), 0.0
-    for _ in range(int(round(duration / h))):
-        stepper.step()
-        worst = max(worst, abs(energy() - e0))
-    return worst
+    return _energy_error(*cart_pendulum(h), order, duration)
 
 
 def example2_events(order: int, h: float) -> dict:
