@@ -16,7 +16,7 @@ The first steps of each run (warm-up: caches, the first coal queries) are left o
 superquadric box only the steps in which the implicit step has an active contact count (the
 bodies land at about step 10), and the native step of the same index is its partner.
 
-Run: python -m comparisons.bench_step [--steps 400] [--repeat 1]
+Run: python -m comparisons.bench_step [--steps 400] [--repeat 1] [--order 2]   (StepperOptions.order)
 """
 import argparse
 import time
@@ -33,15 +33,15 @@ GOALS = {"rolling disc": 0.5, "sphere on two spheres": 20.0, "rocking ellipsoid"
          "27 superquadrics in a box": 30.0}
 
 
-def _disc():
+def _disc(options):
     world = disc_rolling.build_world(0.01)
     native, _ = dart_native.build_ngon_world(1000, h=0.01, detector="fcl")
-    return ic.ImplicitContactStepper(world), world, native, None, "DART 1000-gon prism, FCL"
+    return ic.ImplicitContactStepper(world, options=options), world, native, None, "DART 1000-gon prism, FCL"
 
 
-def _spheres():
+def _spheres(options):
     world = spheres.build_world(0.01)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=options)
     ball = world.getSkeleton("ball").getBodyNode(0)
     for name in ("sphere_r10", "sphere_r9"):
         stepper.set_pair_friction(ball, world.getSkeleton("fixed_spheres").getBodyNode(name), spheres.FRICTION)
@@ -50,28 +50,28 @@ def _spheres():
     return stepper, world, native, before, "DART SphereShapes"
 
 
-def _ellipsoid():
+def _ellipsoid(options):
     world = ellipsoid_rocking.build_world(2e-3)
     native = ellipsoid_rocking.build_world(2e-3)
     native.setCollisionDetector(dart_native.make_detector("fcl"))
-    return ic.ImplicitContactStepper(world), world, native, None, "DART EllipsoidShape, FCL"
+    return ic.ImplicitContactStepper(world, options=options), world, native, None, "DART EllipsoidShape, FCL"
 
 
-def _superquadrics():
+def _superquadrics(options):
     world = stability.many_bodies_world(27, 0.01, stability.IMPLICIT)
     native = stability.many_bodies_world(27, 0.01, stability.NATIVE)
-    return ic.ImplicitContactStepper(world), world, native, None, "DART BoxShapes, FCL"
+    return ic.ImplicitContactStepper(world, options=options), world, native, None, "DART BoxShapes, FCL"
 
 
 SCENES = {"rolling disc": (_disc, None), "sphere on two spheres": (_spheres, None),
           "rocking ellipsoid": (_ellipsoid, None), "27 superquadrics in a box": (_superquadrics, 60)}
 
 
-def measure(name: str, steps: int) -> dict:
+def measure(name: str, steps: int, order: int = 1) -> dict:
     """Interleaved per-step wall times of one scene: {implicit, native: median [s], ratio, steps,
     configuration}."""
     make, fixed_steps = SCENES[name]
-    stepper, world, native, before, configuration = make()
+    stepper, world, native, before, configuration = make(ic.StepperOptions(order=order))
     n = fixed_steps or steps
     ti, tn, contact = [], [], []
     for k in range(n + (0 if fixed_steps else WARMUP)):
@@ -100,12 +100,13 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=400)
     parser.add_argument("--repeat", type=int, default=1, help="runs of every scene (each printed)")
     parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
+    parser.add_argument("--order", type=int, choices=(1, 2), default=1, help="the implicit stepper's order")
     args = parser.parse_args(argv)
     print(f"{'scene':28s} {'native configuration':26s} {'steps':>5s} {'implicit us':>12s} {'native us':>10s} "
           f"{'ratio':>7s} {'goal':>6s}")
     for _ in range(args.repeat):
         for name in args.scenes:
-            m = measure(name, args.steps)
+            m = measure(name, args.steps, args.order)
             goal = GOALS[name]
             print(f"{name:28s} {m['configuration']:26s} {m['steps']:5d} {1e6 * m['implicit']:12.1f} "
                   f"{1e6 * m['native']:10.1f} {m['ratio']:7.2f} {goal:6.1f} {'met' if m['ratio'] <= goal else 'NOT met'}")
