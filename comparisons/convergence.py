@@ -92,12 +92,7 @@ def cart_pendulum(h: float, q0: float = 0.8):
     world = dart_world(h)
     ground_box(world, mu=0.0)
     skel = dart.dynamics.Skeleton("cart")
-    _, cart = skel.createFreeJointAndBodyNodePair()
-    cart.setMass(1.0)
-    cart.setMomentOfInertia(*([0.4 * BALL_R ** 2] * 3), 0.0, 0.0, 0.0)
-    node = cart.createShapeNode(dart.dynamics.SphereShape(BALL_R))
-    node.createCollisionAspect()
-    node.createDynamicsAspect().setFrictionCoeff(0.0)
+    cart = _ball_body(skel, 0.0)
     joint, bob = skel.createRevoluteJointAndBodyNodePair(cart)
     joint.setAxis([0.0, 1.0, 0.0])
     bob.setMass(0.5)
@@ -144,16 +139,24 @@ def rocking_errors(order: int, h: float, duration: float = 1.0) -> tuple[float, 
             float(np.max(np.abs(er.rocking_energy(traj) - e0)) / e0))
 
 
-def ball(world, mu: float, z: float, v):
-    """A 1 kg solid ball of radius BALL_R (DART SphereShape, friction mu) at height z, velocity v."""
+def _ball_body(skel, mu: float):
+    """The root of skel: a FreeJoint body, a 1 kg solid ball of radius BALL_R (DART SphereShape
+    with collision, friction mu)."""
     import dartpy as dart
-    skel = dart.dynamics.Skeleton("ball")
     _, body = skel.createFreeJointAndBodyNodePair()
     body.setMass(1.0)
     body.setMomentOfInertia(*([0.4 * BALL_R ** 2] * 3), 0.0, 0.0, 0.0)
     node = body.createShapeNode(dart.dynamics.SphereShape(BALL_R))
     node.createCollisionAspect()
     node.createDynamicsAspect().setFrictionCoeff(mu)
+    return body
+
+
+def ball(world, mu: float, z: float, v):
+    """A 1 kg solid ball of radius BALL_R (DART SphereShape, friction mu) at height z, velocity v."""
+    import dartpy as dart
+    skel = dart.dynamics.Skeleton("ball")
+    _ball_body(skel, mu)
     world.addSkeleton(skel)
     skel.setPositions([0.0, 0.0, 0.0, 0.0, 0.0, z])
     skel.setVelocities(np.r_[0.0, 0.0, 0.0, v])

@@ -148,17 +148,23 @@ def _pair_points(problem, k, h, v_free, skeleton_of):
         if kin.vindex is not None and o.radius is not None:
             v = v_free[skeleton_of[int(kin.vindex[0])]]
             band += h * float(np.linalg.norm(_twist(kin, v)[0])) * o.radius
-    A, B, C, _ = contact_patch.workspace(first.face, second.face)
-    origin = np.zeros(3)
     (R1, p1), (R2, p2) = [(kin.R0, kin.p0) for kin in kins]
-    m = contact_patch.overlap_polygon(first.face, first.face_half, R1, p1, second.face, second.face_half, R2, p2,
-                                      n, band, A, B, C, origin)
-    if m == 0:
+    X = patch_points(first, second, (R1, p1), (R2, p2), n, band)
+    if len(X) == 0:
         return None
-    t, o = contact_patch.plane_basis(n)
-    X = origin + C[:m, :1] * t + C[:m, 1:2] * o
     gap = _support(second, R2, p2, -n) * -1.0 - _support(first, R1, p1, n)
     return X, n, gap
+
+
+def patch_points(first, second, pose1, pose2, n, band) -> np.ndarray:
+    """The vertices (m, 3) of the overlap of two faceted pieces' faces (the stepper's objects, at
+    poses (R, p)) on the contact plane of unit normal n (patch.overlap_polygon); m = 0 without one."""
+    A, B, C, _ = contact_patch.workspace(first.face, second.face)
+    origin = np.zeros(3)
+    m = contact_patch.overlap_polygon(first.face, first.face_half, *pose1, second.face, second.face_half, *pose2,
+                                      n, band, A, B, C, origin)
+    t, o = contact_patch.plane_basis(n)
+    return origin + C[:m, :1] * t + C[:m, 1:2] * o
 
 
 def _support(obj, R, p, u) -> float:

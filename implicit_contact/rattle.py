@@ -69,6 +69,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import ncp
+from .layout import _tangent_basis
 from .rows import velocity as rv
 
 
@@ -78,10 +79,7 @@ def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
     a1 - p1, a2 - p2 (p_b: the body origins at l)."""
     n = np.asarray(normal, float) / np.linalg.norm(normal)
     if dim == 3:
-        e = np.asarray(axis, float)
-        t = e - (e @ n) * n
-        t /= np.linalg.norm(t)
-        o = np.cross(n, t)
+        n, t, o = _tangent_basis(n, np.asarray(axis, float))
     else:
         t = np.array([-n[1], n[0], 0.0])
         o = np.zeros(3)

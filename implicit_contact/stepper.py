@@ -571,11 +571,7 @@ class ImplicitContactStepper:
 
     def _stage1_joints(self, state) -> dict:
         """The joint rows of stage 1 (rattle.py, eq R1): [GI]'s, their friction bound h/2 f."""
-        out = {}
-        for s, rows in self._joint_rows(state).items():
-            unit = np.array([0.5 * u if kind == joint_rows.FRICTION else u for u, (kind, _) in zip(rows.unit, rows.keys)])
-            out[s] = replace(rows, unit=unit)
-        return out
+        return {s: _friction_units(rows, 0.5) for s, rows in self._joint_rows(state).items()}
 
     def _stage1(self, state, pairs, joints, t0):
         """(u per skeleton, (problem, att, z, iterations, residual, memory) or None without an
@@ -638,7 +634,8 @@ class ImplicitContactStepper:
                 rec.skeleton.integratePositions(h)
         for rec, _, M, cg in w.skeleton_views:
             adapter.read_dynamics(rec, M, cg)
-        return 0.5 * h * (w.TAU + w.FEXT - w.CG)
+        sk.assemble_forces(w.bundle, h)        # (no springs or dampers: _check_order2)
+        return 0.5 * h * w.FB
 
     def _stage2_step(self, first, u, hf, joints, t0, h):
         """(v+ per skeleton, (iterations, residual, contacts) of the step or the StepReport of a
@@ -674,15 +671,9 @@ class ImplicitContactStepper:
         self._last_joint = {}
         for s in att.involved:
             if s in joints:
-                rows = self._joint_rows_full(joints[s])
+                rows = _friction_units(joints[s], 2.0)      # [GI]'s unit h f again
                 self._last_joint[s] = (rows, np.array([lam.get((s, r), 0.0) for r in range(len(rows.keys))]))
         return v_next, (iterations, residual, contacts)
-
-    @staticmethod
-    def _joint_rows_full(rows):
-        """Stage 1's joint rows with [GI]'s friction unit h f again (_stage1_joints halved it)."""
-        unit = np.array([2.0 * u if kind == joint_rows.FRICTION else u for u, (kind, _) in zip(rows.unit, rows.keys)])
-        return replace(rows, unit=unit)
 
     def _write_end_velocities(self, v_next, v_l, h):
         """v+ into DART, and the accelerations (v+ - v) / h."""
@@ -725,13 +716,10 @@ class ImplicitContactStepper:
                                 _pose_dim(poses[second.body], d))
             if res.distance > tol:
                 return None
-            a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
             normal = np.asarray(res.normal, float)
-            if res.distance <= self.options.contact_tolerance:
-                # a face on a face touches along a patch: the point nearest the centres, as _seed_pair
-                P1, P2 = (fm.Pose(*_pose_dim(poses[o.body], d), np.zeros(3)) for o in (first, second))
-                a1 = a2 = _central_touch_point(spec, P1, P2, a1, normal / np.linalg.norm(normal),
-                                               self.options.contact_tolerance)
+            # touching: the point nearest the centres (a face on a face touches along a patch), as _seed_pair
+            P1, P2 = (fm.Pose(*_pose_dim(poses[o.body], d), np.zeros(3)) for o in (first, second))
+            a1 = a2 = _central_touch_point(spec, P1, P2, np.asarray(res.a1, float), normal / np.linalg.norm(normal), tol)
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
         pad = lambda x: np.r_[x, np.zeros(3 - len(x))]
@@ -748,6 +736,8 @@ class ImplicitContactStepper:
         problem._evaluated_at(z)
         rep = problem._rep
         closed, cps, bodies, index = [], [], [], {}
+        vcol = dict(zip(att.involved, np.cumsum([0] + [len(u[s]) for s in att.involved]).tolist()))
+        nv = sum(len(u[s]) for s in att.involved)
         for k, spec in enumerate(att.specs):
             sl = problem.layout.pairs[k]
             p_n = float(z[sl.p_n])
@@ -761,12 +751,10 @@ class ImplicitContactStepper:
                     ends.append(-1)
                     continue
                 if b not in index:
-                    s = rec.skeleton_index
-                    col = sum(len(u[x]) for x in att.involved[:att.sk_pos[s]])
-                    T = rec.body_node.getTransform().matrix()
-                    J = np.array(rec.skeleton.getWorldJacobian(rec.body_node, np.zeros(3)))
+                    T, J = np.empty((4, 4)), np.empty((6, len(u[rec.skeleton_index])))
+                    adapter.read_body(rec, T, J)
                     index[b] = len(bodies)
-                    bodies.append((col, J, T[:3, 3].copy()))
+                    bodies.append((vcol[rec.skeleton_index], J, T[:3, 3].copy()))
                 ends.append(index[b])
             R1 = np.zeros(4)
             R1[0] = p_n
@@ -791,42 +779,30 @@ class ImplicitContactStepper:
                 cps.append(replace(stage1, a=(x, x), mu=0.0, e_r=0.0, R1=np.zeros(4), start_n=2.0 * p_n / len(X)))
             closed.append((k, 1 + len(X)))
         skeletons, jrows, jdata = [], [], []
-        col = 0
-        nv = sum(len(u[s]) for s in att.involved)
         for i, s in enumerate(att.involved):
             k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
             skeletons.append((w.MB[mo:mo + k * k].reshape(k, k).copy(), u[s], hf[o:o + k]))
             rows = joints.get(s)
             if rows is not None:
                 lam1 = z[problem.layout.joint_index[i]]
-                full = self._joint_rows_full(rows)
+                full = _friction_units(rows, 2.0)
                 for r, (kind, _) in enumerate(rows.keys):
                     closed_limit = float(rows.G[r] @ u[s]) + rows.c[r] <= tol / problem.h
                     if kind in (joint_rows.LOWER, joint_rows.UPPER) and not (closed_limit or lam1[r] > 0.0):
                         continue
                     g = np.zeros(nv)
-                    g[col:col + k] = rows.G[r]
+                    g[vcol[s]:vcol[s] + k] = rows.G[r]
                     jrows.append((s, r))
                     jdata.append((g, full.unit[r], rows.lower[r], rows.upper[r], rows.unit[r] * lam1[r]))
-            col += k
         return rattle.Stage2(skeletons, bodies, cps, jdata), closed, jrows
 
     def _patch_vertices(self, spec, n):
         """The vertices (m, 3) of a faceted pair's patch at q+ (DART's poses now) on its contact
         plane of normal n, or None if it is a point."""
         first, second = spec.objects
-        poses = []
-        for o in (first, second):
-            T = self.scene.bodies[o.body].body_node.getTransform().matrix()
-            poses.append((np.ascontiguousarray(T[:3, :3]), T[:3, 3].copy()))
-        A, B, C, _ = contact_patch.workspace(first.face, second.face)
-        origin = np.zeros(3)
-        m = contact_patch.overlap_polygon(first.face, first.face_half, *poses[0], second.face, second.face_half,
-                                          *poses[1], n, contact_patch.band(first.piece, second.piece), A, B, C, origin)
-        if m < 2:
-            return None
-        t, o = contact_patch.plane_basis(n)
-        return origin + C[:m, :1] * t + C[:m, 1:2] * o
+        poses = [adapter.body_pose(self.scene.bodies[o.body]) for o in (first, second)]
+        X = landing.patch_points(first, second, *poses, n, contact_patch.band(first.piece, second.piece))
+        return X if len(X) >= 2 else None
 
     def _split_contacts(self, contacts, closed, stage2, x):
         """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2)."""
@@ -835,11 +811,10 @@ class ImplicitContactStepper:
         P_all = stage2.impulses(x)
         at = 0
         for k, count in closed:
-            cps, Gs, Ps = stage2.pairs[at:at + count], stage2.G[at:at + count], P_all[at:at + count]
+            # the pair, or a patch's friction point (its P_n is its vertices' sum) followed by them
+            cp, G, P = stage2.pairs[at], stage2.G[at], P_all[at]
             at += count
-            cp, G = cps[0], Gs[0]
             slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
-            P = Ps[0]             # a patch's point: P_n is its vertices' sum
             contacts[k] = replace(contacts[k], p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2],
                                   p_r=cp.s_p * cp.e_r * P[3], slip=slip, p_core=cp.s_p * P[0])
         return tuple(contacts)
@@ -1883,6 +1858,13 @@ def _active_count(piece, pose, a, tol) -> int:
 
 def _nan_if_none(value):
     return math.nan if value is None else value
+
+
+def _friction_units(rows, factor):
+    """A skeleton's joint rows with their Coulomb friction rows' unit h f scaled by factor (order
+    2's stage 1 bounds friction by h/2 f, rattle.py eq R1)."""
+    return replace(rows, unit=np.array([factor * u if kind == joint_rows.FRICTION else u
+                                        for u, (kind, _) in zip(rows.unit, rows.keys)]))
 
 
 def _pose_dim(pose, dim):
