@@ -76,8 +76,8 @@ class StepperOptions:
         its contact patch's torsion radius (patch.py: a box on its face, a cylinder on its cap or
         side); False leaves such pairs without torsion rows.
     order: 1 is [GI] as printed (first order); 2 the split step of rattle.py (second order in
-        free flight and persistent contact; two solves per step; rigid pairs and joints without
-        friction, limits, mimic relations or springs only, so far).
+        free flight and persistent contact; two solves per step; no quasi-rigid layers and no
+        joint springs or dampers yet, refused at construction).
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
