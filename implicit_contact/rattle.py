@@ -65,25 +65,42 @@ Three cases the equations above leave open, and what the step does:
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 
 import numpy as np
 
 from . import ncp
-from .layout import _tangent_basis
+from . import step_solver
 from .rows import velocity as rv
 
 
 def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
     """A pair's frame at l as rows/contact.py's Q_N0.. columns read it (15,): n (unit, body 1 into
-    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (rows/contact.py), levers
-    a1 - p1, a2 - p2 (p_b: the body origins at l)."""
-    n = np.asarray(normal, float) / np.linalg.norm(normal)
+    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (rows/contact.py: t = (e - (e.n) n)
+    / |...|, o = n x t), levers a1 - p1, a2 - p2 (p_b: the body origins at l). a1, a2, normal: dim
+    entries; p1, p2: 3. (Scalar arithmetic: this runs for every split pair of every step.)"""
+    out = np.zeros(15)
+    nx, ny = float(normal[0]), float(normal[1])
+    nz = float(normal[2]) if dim == 3 else 0.0
+    s = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    nx, ny, nz = nx * s, ny * s, nz * s
     if dim == 3:
-        n, t, o = _tangent_basis(n, np.asarray(axis, float))
+        ex, ey, ez = float(axis[0]), float(axis[1]), float(axis[2])
+        en = ex * nx + ey * ny + ez * nz
+        tx, ty, tz = ex - en * nx, ey - en * ny, ez - en * nz
+        s = 1.0 / math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx, ty, tz = tx * s, ty * s, tz * s
+        out[6:9] = (ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx)
     else:
-        t = np.array([-n[1], n[0], 0.0])
-        o = np.zeros(3)
-    return np.concatenate([n, t, o, np.asarray(a1, float) - p1, np.asarray(a2, float) - p2])
+        tx, ty, tz = -ny, nx, 0.0
+    out[0:3] = (nx, ny, nz)
+    out[3:6] = (tx, ty, tz)
+    for i in range(dim):
+        out[9 + i] = a1[i] - p1[i]
+        out[12 + i] = a2[i] - p2[i]
+    if dim == 2:
+        out[11], out[14] = -p1[2], -p2[2]
+    return out
 
 
 @dataclass
@@ -167,26 +184,26 @@ class Stage2:
         npairs = len(self.pairs)
         self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
-        lo, hi = [np.full(at, -np.inf)], [np.full(at, np.inf)]
+        lo, hi = [[-np.inf] * at], [[np.inf] * at]
         for k, cp in enumerate(self.pairs):
             nt = (cp.dim - 1) if cp.friction else 0
             nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
             ns = 1 if cp.friction else 0
             self.pi[k] = (at, nt, nr, ns, cp.vertices)
             self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1)
-            lo.append(np.r_[-np.inf if cp.vertices else 0.0, np.full(nt + nr, -np.inf), np.zeros(ns)])
-            hi.append(np.full(1 + nt + nr + ns, np.inf))
+            lo.append([-np.inf if cp.vertices else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
+            hi.append([np.inf] * (1 + nt + nr + ns))
             at += 1 + nt + nr + ns
         nj = len(joints)
         self.jg = np.array([j[0] for j in joints], float).reshape(nj, self.nv)
         self.ju = np.array([j[1] for j in joints], float)
         self.jk = np.array([j[4] for j in joints], float)
         self.jcol = np.arange(at, at + nj, dtype=np.int64)
-        lo.append(np.array([j[2] for j in joints], float))
-        hi.append(np.array([j[3] for j in joints], float))
+        lo.append([float(j[2]) for j in joints])
+        hi.append([float(j[3]) for j in joints])
         at += nj
         self.n = at
-        self.lower, self.upper = np.concatenate(lo), np.concatenate(hi)
+        self.lower, self.upper = (np.array([b for block in bounds for b in block], float) for bounds in (lo, hi))
         self._F, self._J = np.zeros(at), np.zeros((at, at))
 
     def fun(self, x):
@@ -206,7 +223,9 @@ class Stage2:
         x[:self.nv] = self.u + np.linalg.solve(self.M, self.hf)
         for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
-            x[c:c + m] = 2.0 * np.r_[cp.R1[0], cp.R1[1:1 + nt], cp.R1[3:3 + nr]]
+            x[c:c + 1 + nt] = 2.0 * cp.R1[:1 + nt]
+            if nr:
+                x[c + 1 + nt] = 2.0 * cp.R1[3]
             if cp.start_n >= 0.0:
                 x[c] = cp.start_n
             if ns:
@@ -241,7 +260,7 @@ class Stage2:
             if attempt is None:
                 res = self.proximal(options)
             else:
-                res = ncp.solve_mcp(self.fun, self.jac, attempt(), self.lower, self.upper, options)
+                res = step_solver.solve_stage2(self, attempt(), options)
             if res.success or (converged_at is not None and res.residual <= converged_at):
                 return res
             if best is None or res.residual < best.residual:

@@ -109,14 +109,16 @@ def _reports_at(T, x, F):
 
 
 @kernel
-def step(W, T, S, SP, C, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, mem_rep, new_f, new_z, new_rep, h,
-         tol, solver_tol, touch, axis_limit, use_far):
+def step(W, T, S, SP, C, MB_src, FB_src, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, mem_rep, new_f,
+         new_z, new_rep, h, tol, solver_tol, touch, axis_limit, use_far):
     """The whole step between reading DART and writing it back, when it repeats the last one's
     structure (ImplicitContactStepper._repeat_step): kinematics, the candidate pairs (the same as
     the context's), the far pairs (the same), prepare, the solve (S; polished in SP), finish and
     the next memory (new_f, new_z, new_rep). Returns OK or why the general step must take over
     (the world buffers then hold the step's kinematics, as _read leaves them). kin: do the
-    kinematics (False: a second call after coal was queried on fresh fat boxes, NEED_COAL)."""
+    kinematics (False: a second call after coal was queried on fresh fat boxes, NEED_COAL, or
+    the caller did them). MB_src, FB_src: the skeletons' mass matrices and forces the rows read
+    (W.MB, W.FB; order 2's first stage: its MB1, FB1, rattle.py eq R1)."""
     if kin and kinematics(W, h, 10.0 * tol, FALSE):
         return FIXED_MOVED
     if not grown_boxes(W, fat_lo, fat_hi):
@@ -145,7 +147,7 @@ def step(W, T, S, SP, C, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, 
             nfar += 1
     code = prepare(T.body_i, T.body_f, T.body_jac, T.sk_i, T.sk_M, T.v0, T.hforce, T.pair_i, T.pair_f, T.scale,
                    T.sup_i, T.sup_f, C.src, W.R_now, W.p_now, W.th_now, W.JB, C.J_at, C.h_body, C.sk_src, W.sk_voff,
-                   W.sk_moff, W.V, W.MB, W.FB, W.VF, h, T.body_dim, T.pos_rows, T.sup_body, T.sup_c, T.sup_er,
+                   W.sk_moff, W.V, MB_src, FB_src, W.VF, h, T.body_dim, T.pos_rows, T.sup_body, T.sup_c, T.sup_er,
                    T.sup_mun, mem_i, mem_f, mem_z, mem_rep, C.identity, touch, axis_limit, C.sup_y, C.z0)
     if code != OK:
         return code

@@ -25,6 +25,7 @@ from . import ncp
 from ._jit import FALSE, TRUE, kernel
 from .formulation import StepProblem
 from .rows.assemble import assemble
+from .rows import velocity as rv
 
 
 @kernel
@@ -67,6 +68,49 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
         assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
                  st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
+
+
+@kernel
+def _solve_stage2(M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g,
+                  da, db, zk, Jz, history, steps, info, fbuf, work, J, H):
+    """One solve of order 2's second stage (rattle.Stage2: rows/velocity.stage2_rows) into the
+    ncp buffers, every request answered inside the call, as _solve_dense."""
+    n = x0.shape[0]
+    Fj = np.empty(n)
+    Jf = np.empty((0, 0))
+    for req in ncp.mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history,
+                                  steps, info, fbuf, work):
+        if req == ncp.REQ_F:
+            rv.stage2_rows(xt, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, Ft, Jf, FALSE)
+        elif req == ncp.REQ_J:
+            rv.stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, Fj, J, TRUE)
+            bad = 0
+            for i in range(n):
+                for j in range(n):
+                    if not np.isfinite(J[i, j]):
+                        bad = 1
+            info[ncp.I_BAD] = bad
+        elif req == ncp.REQ_JZ:
+            ncp.matvec(J, zk, Jz)
+        elif req == ncp.REQ_NEWTON:
+            info[ncp.I_SINGULAR] = 0 if ncp.dense_newton(J, da, db, Phi, H, g, d) else 1
+        elif req == ncp.REQ_LM:
+            info[ncp.I_SINGULAR] = 0 if ncp.dense_lm(H, g, fbuf[ncp.F_MU], d) else 1
+        elif req == ncp.REQ_HG:
+            fbuf[ncp.F_HGSQ] = ncp.dense_hg_sq(H, g)
+
+
+def solve_stage2(stage, x0, options: ncp.SolverOptions) -> ncp.McpResult:
+    """Order 2's second stage (rattle.Stage2) from x0: ncp's solver on its compiled rows, one call."""
+    x = np.ascontiguousarray(x0, dtype=float)      # (the bounds are Stage2's own, well formed)
+    lo, hi = stage.lower, stage.upper
+    n = x.shape[0]
+    buf = ncp.Buffers(n, options.max_iterations)
+    _solve_stage2(stage.M, stage.u, stage.hf, stage.scale, stage.G, stage.pi, stage.pf, stage.jg, stage.ju,
+                  stage.jk, stage.jcol, x, lo, hi, ncp.options_array(options), buf.x, buf.F, buf.xt, buf.Ft,
+                  buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz, buf.history, buf.steps,
+                  buf.info, buf.fbuf, buf.work, np.empty((n, n)), np.empty((n, n)))
+    return ncp.result_from_buffers(buf, options)
 
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:

@@ -238,6 +238,7 @@ class ImplicitContactStepper:
         self._left_out = False     # this step left a far pair out
         self._problems = {}        # persistent step problems, by layout signature and bodies
         self._ctx = None           # what the last step leaves for _repeat_step
+        self._stage2_solver = None  # (options.solver, order 2's stage-2 options: _stage2_step)
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._retrying = False
@@ -542,11 +543,17 @@ class ImplicitContactStepper:
         the impulse R1 in the frame at l (R1)-(R4); the positions q+ = q (+) h u written to DART;
         stage 2 at the fixed geometry q+, the end velocity and total impulse (R5)-(R8)."""
         t0 = self.world.getTime()
+        if not keep:
+            report = self._repeat_step(h, t0)
+            if report is not None:
+                return report
+        self._ctx = None
         state = self._read(h)
         self._stage1_tables(h)
         candidates = self._candidates(state, keep)
+        ordered = sorted(candidates)
         joints = self._stage1_joints(state)
-        u, first = self._stage1(state, sorted(candidates), joints, t0)
+        u, first = self._stage1(state, ordered, joints, t0)
         if isinstance(first, StepReport):
             return first                         # stage 1 failed or was refused
         violated = self._uncovered(candidates, u, self._world_vector(u), state)
@@ -563,7 +570,9 @@ class ImplicitContactStepper:
             return second
         self._write_end_velocities(v_next, v_l, h)
         self._last = first[5] if first is not None else PairMemory()
-        self._last_support, self._far, self._ctx = {}, {}, None
+        self._last_support, self._far = {}, {}
+        if first is not None and not keep and not joints and not any(map(landing.faceted_pair, first[1].specs)):
+            self._ctx = self._context(h, ordered, ordered, first[0], first[1])     # for _split_repeat
         iterations, residual, contacts = second
         n = 0 if first is None else first[0].layout.n
         return StepReport(True, iterations, residual, "CONVERGED" if first is not None else "NO_CONTACT",
@@ -575,13 +584,10 @@ class ImplicitContactStepper:
 
     def _stage1(self, state, pairs, joints, t0):
         """(u per skeleton, (problem, att, z, iterations, residual, memory) or None without an
-        MCP, or the StepReport of a failed or refused solve)."""
-        w = self._world
+        MCP, or (None, the StepReport of a failed or refused solve))."""
         h = state.h
-        u = [w.V[o:o + k] + np.linalg.solve(w.MB1[mo:mo + k * k].reshape(k, k), h * w.FB1[o:o + k]) if k else w.V[o:o]
-             for o, mo, k in zip(w.sk_voff, w.sk_moff, w.sk_nv)]
         if not pairs and not joints:
-            return u, None
+            return self._half_kicks(h), None
         att = self._specs(pairs, state, joints)
         for spec in att.specs:
             # a face on a face takes stage 1's impulse at its equivalent contact point at q+,
@@ -592,15 +598,23 @@ class ImplicitContactStepper:
             # a contact point that moved far within the step: those pairs unsplit, solved again
             problem, result = self._solve_step(att, state)
         if not result.success:
-            return u, self._failure(problem, result, att.specs, t0, h)
+            return None, self._failure(problem, result, att.specs, t0, h)
         contacts, memory = self._solution(problem, result.x, att.specs)
         bad = self._check_solution(problem, result.x, contacts, att.specs, energy=False)
         if bad:
-            return u, StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
-                                 t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
+            return None, StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
+                                    t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
+        u = self._half_kicks(h, att.involved)
         for s in att.involved:
             u[s] = result.x[problem.layout.v_index[att.sk_pos[s]]]
         return u, (problem, att, result.x, result.iterations, result.residual, memory, contacts)
+
+    def _half_kicks(self, h, skip=()) -> list:
+        """Per skeleton its free half-step velocity v + h M1^-1 FB1 (rattle.py, eq R1 without
+        contact; _stage1_tables), or v for those in skip (their u comes from stage 1's MCP)."""
+        w = self._world
+        return [w.V[o:o + k] + np.linalg.solve(w.MB1[mo:mo + k * k].reshape(k, k), h * w.FB1[o:o + k])
+                if k and s not in skip else w.V[o:o + k] for s, (o, mo, k) in enumerate(zip(w.sk_voff, w.sk_moff, w.sk_nv))]
 
     def _split_jumped(self, problem, z, specs) -> bool:
         """Whether a split pair's contact point on body 2 moved more than SPLIT_JUMP of the smaller
@@ -609,19 +623,26 @@ class ImplicitContactStepper:
         a superquadric of exponent 6 rocking over its nearly flat face at h = 0.01 moved its point
         0.17 m (of 0.3) in a step and gained 9e-3 J, a 1:100 ellipsoid jumped."""
         problem._evaluated_at(z)
-        jumped = False
+        jumped = self._jumped_pairs(problem._rep, specs)
+        for k in jumped:
+            specs[k].start_frame = None
+        return bool(jumped)             # (_solve_step refreshes the tables from the specs)
+
+    def _jumped_pairs(self, rep, specs) -> list:
+        """The split pairs (indices) whose contact point on body 2 at q+ (rep: the pairs' reports)
+        is more than SPLIT_JUMP of the smaller piece's size from where it was at l (_split_jumped)."""
+        jumped = []
         for k, spec in enumerate(specs):
             frame = spec.start_frame
             if frame is None:
                 continue
             first, second = spec.objects
-            p2 = self._world.p_now[second.body]
-            moved = float(np.linalg.norm(problem._rep[k, rc.R_A2:rc.R_A2 + 3] - (p2 + frame[12:15])))
+            p2, a2 = self._world.p_now[second.body], rep[k]
+            moved = math.sqrt(sum((float(a2[rc.R_A2 + i]) - (float(p2[i]) + float(frame[12 + i]))) ** 2 for i in range(3)))
             size = min(first.piece.length_scale, second.piece.length_scale)
             if moved > SPLIT_JUMP * size:
-                spec.start_frame = None
-                jumped = True
-        return jumped                   # (_solve_step refreshes the tables from the specs)
+                jumped.append(k)
+        return jumped
 
     def _to_end_positions(self, u, h):
         """q+ = q (+) h u written to DART (R2); DART's M and Coriolis and gravity forces at (q+, u)
@@ -642,17 +663,22 @@ class ImplicitContactStepper:
         failed second stage): the free half kick for skeletons outside the MCP, stage 2 (R5)-(R8)
         for the others."""
         w = self._world
-        v_next = [u[s] + np.linalg.solve(w.MB[mo:mo + k * k].reshape(k, k), hf[o:o + k]) if k else u[s]
-                  for s, (o, mo, k) in enumerate(zip(w.sk_voff, w.sk_moff, w.sk_nv))]
+
+        def kicks(skip=()):
+            return [u[s] + np.linalg.solve(w.MB[mo:mo + k * k].reshape(k, k), hf[o:o + k]) if k and s not in skip
+                    else u[s] for s, (o, mo, k) in enumerate(zip(w.sk_voff, w.sk_moff, w.sk_nv))]
         if first is None:
             self._last_joint = {}
-            return v_next, (0, 0.0, ())
+            return kicks(), (0, 0.0, ())
         problem, att, z, iterations, residual, _, contacts = first
         stage2, closed, jrows = self._stage2(problem, z, att, u, hf, joints)
         lam = {}
+        v_next = kicks(att.involved if (closed or jrows) else ())     # (stage 2 gives theirs)
         if closed or jrows:
-            res2 = stage2.solve(replace(self.options.solver, tol=STAGE2_TOL * self.options.solver.tol),
-                                converged_at=self.options.solver.tol)
+            if self._stage2_solver is None or self._stage2_solver[0] is not self.options.solver:
+                self._stage2_solver = (self.options.solver, replace(self.options.solver,
+                                                                    tol=STAGE2_TOL * self.options.solver.tol))
+            res2 = stage2.solve(self._stage2_solver[1], converged_at=self.options.solver.tol)
             iterations += res2.iterations
             residual = max(residual, res2.residual)
             if not (res2.success or res2.residual <= self.options.solver.tol):   # (see STAGE2_TOL)
@@ -720,11 +746,17 @@ class ImplicitContactStepper:
             # touching: the point nearest the centres (a face on a face touches along a patch), as _seed_pair
             P1, P2 = (fm.Pose(*_pose_dim(poses[o.body], d), np.zeros(3)) for o in (first, second))
             a1 = a2 = _central_touch_point(spec, P1, P2, np.asarray(res.a1, float), normal / np.linalg.norm(normal), tol)
+        return self._frame_at_l(spec, a1, a2, normal, poses)
+
+    @staticmethod
+    def _frame_at_l(spec, a1, a2, normal, poses) -> np.ndarray:
+        """rattle.start_frame of a pair from its closest points a1, a2 and normal at l (d entries
+        each) and the body poses at l; a pair without a tangent axis yet gets one."""
+        first, second = spec.objects
+        d = spec.dim
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
-        pad = lambda x: np.r_[x, np.zeros(3 - len(x))]
-        return rattle.start_frame(pad(a1), pad(a2), pad(normal), spec.tangent_axis, poses[first.body][1],
-                                  poses[second.body][1], d)
+        return rattle.start_frame(a1, a2, normal, spec.tangent_axis, poses[first.body][1], poses[second.body][1], d)
 
     def _stage2(self, problem, z, att, u, hf, joints):
         """(rattle.Stage2 of the pairs closed at q+ and the joint rows, the closed pairs (index,
@@ -850,7 +882,9 @@ class ImplicitContactStepper:
         last step's problem refreshed in place) instead of being rebuilt pair by pair; the
         mathematics is _one_step's (tests/test_repeat_step.py checks the trajectories are the same
         bitwise). None when anything differs or a check of _one_step would act: _one_step then
-        takes the step from the start."""
+        takes the step from the start. Order 2 has its own: _split_repeat."""
+        if self.options.order == 2:
+            return self._split_repeat(h, t0)
         ctx = self._ctx
         w = self._world
         if (ctx is None or ctx.h != h or self._all_pairs or self._trapezoidal_skeletons() or w.moving_unbounded
@@ -888,7 +922,7 @@ class ImplicitContactStepper:
                 t.pair_f[k, rc.Q_ER] = e_r
         new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
         self._read_dart()
-        args = (w.bundle, problem.bundle, S, SP, C)
+        args = (w.bundle, problem.bundle, S, SP, C, w.MB, w.FB)
         tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h, tol,
                 self.options.solver.tol, _TOUCH, _AXIS_LIMIT, self.options.skip_far_pairs)
         code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], True, *tail)
@@ -920,6 +954,87 @@ class ImplicitContactStepper:
                    f"{float(buf.fbuf[ncp.F_RESIDUAL]):.3g} <= tol {opts.tol:.3g}.")
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
         return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n)
+
+    def _split_repeat(self, h, t0) -> StepReport | None:
+        """_repeat_step for order 2: when stage 1 repeats the last step's structure (the same
+        candidate pairs, all of them in the MCP, the same rows, no faceted pair, no joint rows or
+        supports, no recovery), its MCP is one compiled call (repeat_kernels.step on the last stage
+        1's problem, with stage 1's tables MB1, FB1 and each pair's frame at l from the last step's
+        closest points, as _stage1 and _start_frame set them); then _split_step's checks (a contact
+        point that jumped, a normal that turned over, a pair the broadphase did not offer) and its
+        stage 2. The mathematics is _split_step's (tests/test_repeat_step.py: bit for bit). None
+        when anything differs or a check would act: _split_step then takes the step afresh."""
+        ctx, w = self._ctx, self._world
+        if (ctx is None or ctx.h != h or ctx.problem is None or self._all_pairs or w.moving_unbounded
+                or self._joint_models or ctx.problem.supports):
+            return None
+        problem, att, memory, fat = ctx.problem, ctx.att, self._last, self._fat
+        t, lay = problem.tables, problem.layout
+        if len(memory) != len(t.pair_i) or fat is None:
+            return None
+        state = self._read(h)
+        if w.fixed_moved:
+            return None
+        self._stage1_tables(h)
+        tol = self.options.contact_tolerance
+        for k, spec in enumerate(att.specs):
+            # the frame at l from the last step's closest points, as _pair_spec and _start_frame
+            rep, d = memory.rep[k], spec.dim
+            spec.normal_l = rep[rc.R_N:rc.R_N + d].copy()
+            frame = None
+            if rep[rc.R_GAP] <= tol:
+                if d == 3:
+                    spec.tangent_axis = np.empty(3)
+                    choose_axis(memory.pair_f[k, rc.Q_AXIS:rc.Q_AXIS + 3], rep[rc.R_N:rc.R_N + 3], _AXIS_LIMIT,
+                                spec.tangent_axis)
+                frame = self._frame_at_l(spec, rep[rc.R_A1:rc.R_A1 + d], rep[rc.R_A2:rc.R_A2 + d], spec.normal_l,
+                                         state.poses_now)
+            spec.start_frame = frame
+            t.pair_i[k, rc.P_SPLIT] = int(frame is not None)
+            t.pair_f[k, rc.Q_N0:rc.NPF] = frame if frame is not None else 0.0
+        opts = self._retry_options() if self._retrying else self.options.solver
+        if ctx.solver is None or ctx.solver[0] is not opts:
+            ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
+        _, S, SP, buf, pbuf = ctx.solver
+        new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
+        args = (w.bundle, problem.bundle, S, SP, ctx.bundle, w.MB1, w.FB1)
+        tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h, tol,
+                self.options.solver.tol, _TOUCH, _AXIS_LIMIT, False)
+        code = rk_repeat.NEED_COAL
+        for _ in range(2):           # (kinematics done by _read; coal asked again once on NEED_COAL)
+            code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
+            if code != rk_repeat.NEED_COAL:
+                break
+            self._refresh_fat(w.margins)
+            fat = self._fat
+        problem._invalidate()
+        problem.h = h
+        if code != rk_repeat.OK or self._jumped_pairs(new_rep, att.specs):
+            return None
+        for k, spec in enumerate(att.specs):
+            if new_z[lay.pairs[k].p_n] > 0.0 and float(new_rep[k, rc.R_N:rc.R_N + spec.dim] @ spec.normal_l) < 0.0:
+                return None                  # a normal that turned over: _check_solution refuses it
+        u = self._half_kicks(h, att.involved)
+        for s in att.involved:
+            u[s] = new_z[lay.v_index[att.sk_pos[s]]]
+        if self._uncovered(frozenset(map(tuple, ctx.candidates.tolist())), u, self._world_vector(u), state):
+            return None
+        polished = pbuf.fbuf[ncp.F_RESIDUAL] < buf.fbuf[ncp.F_RESIDUAL] and \
+            buf.fbuf[ncp.F_RESIDUAL] > 1e-3 * opts.tol
+        iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
+        residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
+        new_memory = memory.carried_arrays(new_f, new_z, new_rep)
+        contacts = list(_LazyContacts(self, problem, new_z, att.specs, new_rep))
+        first = (problem, att, new_z, iterations, residual, new_memory, contacts)
+        v_l = w.V.copy()
+        hf = self._to_end_positions(u, h)
+        v_next, second = self._stage2_step(first, u, hf, {}, t0, h)
+        if isinstance(second, StepReport):
+            return second
+        self._write_end_velocities(v_next, v_l, h)
+        self._last, self._last_support, self._far = new_memory, {}, {}
+        iterations, residual, contacts = second
+        return StepReport(True, iterations, residual, "CONVERGED", tuple(contacts), t0 + h, 1, "", lay.n)
 
     def _repeat_free_flight(self, ctx, h, t0) -> StepReport | None:
         """_repeat_step when no pair was near: the same candidates, all far, and still out of reach

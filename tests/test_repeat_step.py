@@ -4,7 +4,9 @@ _repeat_step refreshes the last step's problem in place and carries its solution
 kernels instead of rebuilding it pair by pair through _one_step; the mathematics must be the
 same. Each scene is stepped twice, with the repeat path and with it switched off: positions,
 velocities and the solver's iteration counts must agree bit for bit at every step, and the
-repeat path must have taken most steps (else this test would test nothing).
+repeat path must have taken most steps (else this test would test nothing). Order 2's step
+(_split_step) has its own repeat path for stage 1 (_split_repeat, the same kernel with stage 1's
+tables and frames at l), checked the same way on the scenes of its work-precision study.
 """
 import numpy as np
 import pytest
@@ -20,23 +22,26 @@ from test_support import _stepper as _support_stepper, _world as _support_world
 MIN_REPEATED = 0.5     # fraction of the steps the repeat path must take in these steady scenes
 
 
-def _disc():
+ORDER_2 = ic.StepperOptions(order=2)     # order 2's stage 1 repeats too (ImplicitContactStepper._split_repeat)
+
+
+def _disc(options=None):
     world = disc_rolling.build_world(0.01)
-    return world, ic.ImplicitContactStepper(world), None
+    return world, ic.ImplicitContactStepper(world, options=options), None
 
 
-def _spheres():
+def _spheres(options=None):
     world = spheres.build_world(0.01)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=options)
     ball = world.getSkeleton("ball").getBodyNode(0)
     for name in ("sphere_r10", "sphere_r9"):
         stepper.set_pair_friction(ball, world.getSkeleton("fixed_spheres").getBodyNode(name), spheres.FRICTION)
     return world, stepper, lambda: spheres.push(world, 0.0)
 
 
-def _ellipsoid():
+def _ellipsoid(options=None):
     world = ellipsoid_rocking.build_world(2e-3)
-    return world, ic.ImplicitContactStepper(world), None
+    return world, ic.ImplicitContactStepper(world, options=options), None
 
 
 def _sliding_box():
@@ -63,7 +68,9 @@ def _support():
 
 SCENES = {"disc": (_disc, 150), "spheres": (_spheres, 150), "ellipsoid": (_ellipsoid, 150),
           "sliding box": (_sliding_box, 150), "quasi-rigid disc": (_quasi_rigid, 600),
-          "pendulum on an obstacle": (_pendulum, 600), "support friction": (_support, 100)}
+          "pendulum on an obstacle": (_pendulum, 600), "support friction": (_support, 100),
+          "disc, order 2": (lambda: _disc(ORDER_2), 150), "spheres, order 2": (lambda: _spheres(ORDER_2), 150),
+          "ellipsoid, order 2": (lambda: _ellipsoid(ORDER_2), 150)}
 
 
 def _run(make, steps, repeat):
