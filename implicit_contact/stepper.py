@@ -837,18 +837,24 @@ class ImplicitContactStepper:
         return X if len(X) >= 2 else None
 
     def _split_contacts(self, contacts, closed, stage2, x):
-        """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2)."""
-        contacts = list(contacts)
+        """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2);
+        lazily made (_LazyContacts) if stage 1's are."""
         v = x[:stage2.nv]
         P_all = stage2.impulses(x)
-        at = 0
+        updates, at = {}, 0
         for k, count in closed:
             # the pair, or a patch's friction point (its P_n is its vertices' sum) followed by them
             cp, G, P = stage2.pairs[at], stage2.G[at], P_all[at]
             at += count
             slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
-            contacts[k] = replace(contacts[k], p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2],
-                                  p_r=cp.s_p * cp.e_r * P[3], slip=slip, p_core=cp.s_p * P[0])
+            updates[k] = dict(p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2], p_r=cp.s_p * cp.e_r * P[3],
+                              slip=slip, p_core=cp.s_p * P[0])
+        if isinstance(contacts, _LazyContacts):
+            contacts.updates = updates
+            return contacts
+        contacts = list(contacts)
+        for k, changes in updates.items():
+            contacts[k] = replace(contacts[k], **changes)
         return tuple(contacts)
 
     # -- a step that repeats the last one's structure ---------------------------------------------
@@ -1024,7 +1030,7 @@ class ImplicitContactStepper:
         iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
         residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
         new_memory = memory.carried_arrays(new_f, new_z, new_rep)
-        contacts = list(_LazyContacts(self, problem, new_z, att.specs, new_rep))
+        contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
         first = (problem, att, new_z, iterations, residual, new_memory, contacts)
         v_l = w.V.copy()
         hf = self._to_end_positions(u, h)
@@ -1034,7 +1040,7 @@ class ImplicitContactStepper:
         self._write_end_velocities(v_next, v_l, h)
         self._last, self._last_support, self._far = new_memory, {}, {}
         iterations, residual, contacts = second
-        return StepReport(True, iterations, residual, "CONVERGED", tuple(contacts), t0 + h, 1, "", lay.n)
+        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, "", lay.n)
 
     def _repeat_free_flight(self, ctx, h, t0) -> StepReport | None:
         """_repeat_step when no pair was near: the same candidates, all far, and still out of reach
@@ -1880,6 +1886,7 @@ class _LazyContacts(Sequence):
         self._args = (stepper, problem, z, specs)
         self._items = None
         self._rep = rep
+        self.updates = {}      # per pair index, fields that replace the report's (order 2's stage 2)
 
     def _made(self):
         if self._items is None:
@@ -1888,8 +1895,11 @@ class _LazyContacts(Sequence):
             problem._rep[:] = self._rep          # the reports of this step's solution
             problem._rep_at, problem._reports_np = z, None
             try:
-                self._items = tuple(stepper._contact_report(problem, z, k, spec, problem.unpack_pair(z, k))
-                                    for k, spec in enumerate(specs))
+                made = [stepper._contact_report(problem, z, k, spec, problem.unpack_pair(z, k))
+                        for k, spec in enumerate(specs)]
+                for k, changes in self.updates.items():
+                    made[k] = replace(made[k], **changes)
+                self._items = tuple(made)
             finally:
                 problem._rep[:], problem._rep_at, problem._reports_np = saved
             self._args = None
