@@ -5,6 +5,7 @@ sphere-sphere, sphere/ellipsoid-plane, disc-half-plane; an independent check of 
 """
 import math
 import time
+import zlib
 
 import numpy as np
 import pytest
@@ -143,9 +144,29 @@ def check_against_oracle(shape1, shape2, pose1, pose2):
     return res
 
 
+def _pair_seed(pair) -> int:
+    """A seed per pair that is the same in every process (hash() of strings is salted per
+    process: the poses, and a rare failure, changed from run to run)."""
+    return zlib.crc32("-".join(pair).encode()) % 1000
+
+
 @pytest.mark.parametrize("pair", PAIRS_3D, ids=["-".join(p) for p in PAIRS_3D])
 def test_random_separated_pairs_3d_match_slsqp(pair):
-    rng = np.random.default_rng(RNG_SEED + hash(pair) % 1000)
+    rng = np.random.default_rng(RNG_SEED + _pair_seed(pair))
+    shape1, shape2 = SHAPES_3D[pair[0]], SHAPES_3D[pair[1]]
+    for _ in range(3):
+        pose1, pose2 = random_separated_poses(shape1, shape2, rng)
+        check_against_oracle(shape1, shape2, pose1, pose2)
+
+
+# random separated poses (RNG_SEED + seed, three draws) where Newton crawled past the solver's
+# 60 iterations from both starts; closest_points then solves once more with a larger budget
+CRAWLING = [(("capped_cylinder", "superquadric"), 152), (("box", "box"), 904), (("box", "box"), 917)]
+
+
+@pytest.mark.parametrize("pair, seed", CRAWLING, ids=[f"{'-'.join(p)}-{s}" for p, s in CRAWLING])
+def test_separated_pairs_where_newton_crawls_still_match_slsqp(pair, seed):
+    rng = np.random.default_rng(RNG_SEED + seed)
     shape1, shape2 = SHAPES_3D[pair[0]], SHAPES_3D[pair[1]]
     for _ in range(3):
         pose1, pose2 = random_separated_poses(shape1, shape2, rng)
@@ -154,7 +175,7 @@ def test_random_separated_pairs_3d_match_slsqp(pair):
 
 @pytest.mark.parametrize("pair", PAIRS_2D, ids=["-".join(p) for p in PAIRS_2D])
 def test_random_separated_pairs_2d_match_slsqp(pair):
-    rng = np.random.default_rng(RNG_SEED + 1 + hash(pair) % 1000)
+    rng = np.random.default_rng(RNG_SEED + 1 + _pair_seed(pair))
     shape1, shape2 = SHAPES_2D[pair[0]], SHAPES_2D[pair[1]]
     for _ in range(3):
         pose1, pose2 = random_separated_poses(shape1, shape2, rng)
