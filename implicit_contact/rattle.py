@@ -156,6 +156,7 @@ class Stage2:
         self.M = np.zeros((at, at))
         self.u = np.zeros(at)
         self.hf = np.zeros(at)
+        self._blocks = [(c, len(M)) for c, (M, _, _) in zip(cols, skeletons)]
         for c, (M, u, hf) in zip(cols, skeletons):
             k = len(M)
             self.M[c:c + k, c:c + k] = M
@@ -220,7 +221,8 @@ class Stage2:
         """The free half kick for v+, twice stage 1's impulse (the trapezoidal guess R2 = R1) and
         stage 1's sigma."""
         x = np.zeros(self.n)
-        x[:self.nv] = self.u + np.linalg.solve(self.M, self.hf)
+        for c, k in self._blocks:      # M is block diagonal over the skeletons
+            x[c:c + k] = self.u[c:c + k] + np.linalg.solve(self.M[c:c + k, c:c + k], self.hf[c:c + k])
         for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + 1 + nt] = 2.0 * cp.R1[:1 + nt]

@@ -903,8 +903,8 @@ class ImplicitContactStepper:
         t = problem.tables
         lay = problem.layout
         fat = self._fat
-        if len(memory) != len(t.pair_i) or fat is None:
-            return None
+        if len(memory) != len(t.pair_i) or fat is None or problem._sparse:
+            return None           # (the kernel's solve is dense: a sparse problem takes _one_step's LU)
         C = ctx.bundle
         for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
             last = self._last_support.get(sp.key)
@@ -976,8 +976,8 @@ class ImplicitContactStepper:
             return None
         problem, att, memory, fat = ctx.problem, ctx.att, self._last, self._fat
         t, lay = problem.tables, problem.layout
-        if len(memory) != len(t.pair_i) or fat is None:
-            return None
+        if len(memory) != len(t.pair_i) or fat is None or problem._sparse:
+            return None           # (the kernel's solve is dense, as in _repeat_step)
         state = self._read(h)
         if w.fixed_moved:
             return None
