@@ -46,7 +46,7 @@ The start frame of a pair (n0, t0, o0 and the levers r_b0 = a_b - p_b at l) come
 step's solution when the pair persists (its closest points at l+1 are the points at l now), else
 from a static closest-point solve at l (stepper.py).
 
-Three cases the equations above leave open, and what the step does:
+The cases the equations above leave open, and what the step does:
 * an impact (a pair open at l): the frame at l is that of the nearest points before the landing,
   not where it lands, and a nearly flat body (a superquadric of exponent 6 dropped on the ground)
   gained up to 0.017 J in a landing step with its impulse there. An open pair takes stage 1's
@@ -58,6 +58,9 @@ Three cases the equations above leave open, and what the step does:
   patch's vertices at q+ (a single point cannot resist tipping at the velocity level: a sliding box
   tumbled) and one friction point sees the whole load (rows/velocity.py). Flat contact has no
   curvature for the frame at l to correct.
+* a split stage 1 that does not converge is solved again with every pair unsplit (as [GI],
+  at half the force): a nearly flat face rocking on the ground (a superquadric of exponent 10
+  dropped) has the undetermined point of a face on a face, and Newton stalled at h / 16.
 * joint rows (joint_rows.py): stage 1 has [GI]'s rows with the friction bound h/2 f; stage 2 a
   velocity-level row per friction dof (the total impulse within h f, opposite the end velocity),
   per mimic relation (held at the end velocity) and per limit closed at q+ (end velocity >= 0).

@@ -599,6 +599,14 @@ class ImplicitContactStepper:
             # from this solution (27 superquadrics in a box: 2 to 3 such re-solves a step)
             att.previous = (problem, result.x.copy())
             problem, result = self._solve_step(att, state)
+        if not result.success and any(spec.start_frame is not None for spec in att.specs):
+            # a failed split solve: every pair unsplit ([GI]'s stage 1 at half the force), from the
+            # warm start; a nearly flat face rocking on the ground has the undetermined point of
+            # a face on a face (a superquadric of exponent 10 dropped: MAX_ITERATIONS at h / 16)
+            for spec in att.specs:
+                spec.start_frame = None
+            att.previous = None
+            problem, result = self._solve_step(att, state)
         if not result.success:
             return None, self._failure(problem, result, att.specs, t0, h)
         contacts, memory = self._solution(problem, result.x, att.specs)

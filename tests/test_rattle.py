@@ -204,3 +204,17 @@ def test_order_2_keeps_an_articulated_skeleton_in_contact_to_second_order():
     err = [cv.cart_energy_error(2, h) for h in (4e-3, 2e-3)]
     assert _observed_order(err) >= ORDER_2
     assert err[1] < 0.01 * cv.cart_energy_error(1, 2e-3)
+
+
+def test_order_2_lands_a_nearly_flat_superquadric_and_brings_it_to_rest(monkeypatch):
+    """A superquadric of exponent 10 dropped tilted (comparisons/stability.py's case): with its
+    impulse in the frame at l, stage 1 stalls on the nearly flat face (the undetermined point of
+    a face on a face) and the step is solved again with every pair unsplit; it lands without a
+    StepFailure and rests on its smallest semi-axis."""
+    from comparisons import stability as stab
+    monkeypatch.setenv(stab.ORDER_ENV, "2")
+    record = stab.shape_case(stab.ShapeCase("superquadric", 10.0, duration=1.5))
+    assert record.completed, record.error
+    assert record.min_gap >= -stab.PEN_TOL
+    rest = next(c for c in record.checks if c.text.startswith("|final height"))
+    assert rest.ok, rest.describe()
