@@ -563,12 +563,9 @@ class ImplicitContactStepper:
         if self._limits_crossed(state, joints, u):
             # a limit whose row was left out is crossed at the solved velocities: again with it
             return self._split_step(h, keep)
-        v_l = self._world.V.copy()
-        hf = self._to_end_positions(u, h)
-        v_next, second = self._stage2_step(first, u, hf, joints, t0, h)
+        second = self._split_end(first, u, joints, t0, h)
         if isinstance(second, StepReport):
             return second
-        self._write_end_velocities(v_next, v_l, h)
         self._last = first[5] if first is not None else PairMemory()
         self._last_support, self._far = {}, {}
         if first is not None and not keep and not joints and not any(map(landing.faceted_pair, first[1].specs)):
@@ -653,6 +650,16 @@ class ImplicitContactStepper:
             if moved > SPLIT_JUMP * size:
                 jumped.append(k)
         return jumped
+
+    def _split_end(self, first, u, joints, t0, h):
+        """The split step after stage 1: q+ = q (+) h u, stage 2, v+ into DART; (iterations,
+        residual, contacts) of the step, or the StepReport of a failed stage 2."""
+        v_l = self._world.V.copy()
+        hf = self._to_end_positions(u, h)
+        v_next, second = self._stage2_step(first, u, hf, joints, t0, h)
+        if not isinstance(second, StepReport):
+            self._write_end_velocities(v_next, v_l, h)
+        return second
 
     def _to_end_positions(self, u, h):
         """q+ = q (+) h u written to DART (R2); DART's M and Coriolis and gravity forces at (q+, u)
@@ -912,20 +919,13 @@ class ImplicitContactStepper:
         memory = self._last
         t = problem.tables
         lay = problem.layout
-        fat = self._fat
-        if len(memory) != len(t.pair_i) or fat is None or problem._sparse:
+        if len(memory) != len(t.pair_i) or self._fat is None or problem._sparse:
             return None           # (the kernel's solve is dense: a sparse problem takes _one_step's LU)
-        C = ctx.bundle
         for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
             last = self._last_support.get(sp.key)
             if last is None or len(last[0]) != ss.y.stop - ss.y.start:
                 return None
             ctx.sup_y[s, :len(last[0])], ctx.sup_y[s, 3] = last[0], last[1]
-        tol = self.options.contact_tolerance
-        opts = self._retry_options() if self._retrying else self.options.solver
-        if ctx.solver is None or ctx.solver[0] is not opts:
-            ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
-        _, S, SP, buf, pbuf = ctx.solver
         for k in ctx.patches:
             # as _pair_spec would: the patch at l along the last normal; a torsion row that
             # appears or goes changes the layout
@@ -936,18 +936,8 @@ class ImplicitContactStepper:
             if spec.patch:
                 spec.friction = replace(spec.friction, e_r=e_r)
                 t.pair_f[k, rc.Q_ER] = e_r
-        new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
         self._read_dart()
-        args = (w.bundle, problem.bundle, S, SP, C, w.MB, w.FB)
-        tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h, tol,
-                self.options.solver.tol, _TOUCH, _AXIS_LIMIT, self.options.skip_far_pairs)
-        code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], True, *tail)
-        if code == rk_repeat.NEED_COAL:
-            self._refresh_fat(w.margins)
-            fat = self._fat
-            code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
-        problem._invalidate()
-        problem.h = h
+        code, new_f, new_z, new_rep, opts = self._repeat_kernel(ctx, h, w.MB, w.FB, True, self.options.skip_far_pairs)
         if code != rk_repeat.OK:
             return None
         self._commit_world(h)
@@ -962,10 +952,8 @@ class ImplicitContactStepper:
         if problem.supports:
             self._last_support = {sp.key: (new_z[ss.y].copy(), float(new_z[ss.sigma]), problem.support_wrench(new_z, s))
                                   for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
-        polished = pbuf.fbuf[ncp.F_RESIDUAL] < buf.fbuf[ncp.F_RESIDUAL] and \
-            buf.fbuf[ncp.F_RESIDUAL] > 1e-3 * opts.tol
-        iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
-        residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
+        iterations, residual = self._repeat_counts(ctx, opts)
+        buf = ctx.solver[3]
         message = (f"Converged in {int(buf.info[ncp.I_ITER])} iterations: natural residual "
                    f"{float(buf.fbuf[ncp.F_RESIDUAL]):.3g} <= tol {opts.tol:.3g}.")
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
@@ -984,47 +972,27 @@ class ImplicitContactStepper:
         if (ctx is None or ctx.h != h or ctx.problem is None or self._all_pairs or w.moving_unbounded
                 or self._joint_models or ctx.problem.supports):
             return None
-        problem, att, memory, fat = ctx.problem, ctx.att, self._last, self._fat
+        problem, att, memory = ctx.problem, ctx.att, self._last
         t, lay = problem.tables, problem.layout
-        if len(memory) != len(t.pair_i) or fat is None or problem._sparse:
+        if len(memory) != len(t.pair_i) or self._fat is None or problem._sparse:
             return None           # (the kernel's solve is dense, as in _repeat_step)
         state = self._read(h)
         if w.fixed_moved:
             return None
         self._stage1_tables(h)
-        tol = self.options.contact_tolerance
         for k, spec in enumerate(att.specs):
-            # the frame at l from the last step's closest points, as _pair_spec and _start_frame
-            rep, d = memory.rep[k], spec.dim
-            spec.normal_l = rep[rc.R_N:rc.R_N + d].copy()
-            frame = None
-            if rep[rc.R_GAP] <= tol:
-                if d == 3:
-                    spec.tangent_axis = np.empty(3)
-                    choose_axis(memory.pair_f[k, rc.Q_AXIS:rc.Q_AXIS + 3], rep[rc.R_N:rc.R_N + 3], _AXIS_LIMIT,
-                                spec.tangent_axis)
-                frame = self._frame_at_l(spec, rep[rc.R_A1:rc.R_A1 + d], rep[rc.R_A2:rc.R_A2 + d], spec.normal_l,
-                                         state.poses_now)
-            spec.start_frame = frame
+            # the frame at l from the last step's closest points: the normal and tangent axis
+            # _pair_spec takes from the memory, then _start_frame
+            spec.normal_l = memory.rep[k, rc.R_N:rc.R_N + spec.dim].copy()
+            if spec.dim == 3:
+                spec.tangent_axis = np.empty(3)
+                choose_axis(memory.pair_f[k, rc.Q_AXIS:rc.Q_AXIS + 3], memory.rep[k, rc.R_N:rc.R_N + 3], _AXIS_LIMIT,
+                            spec.tangent_axis)
+            frame = spec.start_frame = self._start_frame(spec, state)
             t.pair_i[k, rc.P_SPLIT] = int(frame is not None)
             t.pair_f[k, rc.Q_N0:rc.NPF] = frame if frame is not None else 0.0
-        opts = self._retry_options() if self._retrying else self.options.solver
-        if ctx.solver is None or ctx.solver[0] is not opts:
-            ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
-        _, S, SP, buf, pbuf = ctx.solver
-        new_f, new_z, new_rep = np.empty_like(t.pair_f), np.empty(lay.n), np.empty_like(problem._rep)
-        args = (w.bundle, problem.bundle, S, SP, ctx.bundle, w.MB1, w.FB1)
-        tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h, tol,
-                self.options.solver.tol, _TOUCH, _AXIS_LIMIT, False)
-        code = rk_repeat.NEED_COAL
-        for _ in range(2):           # (kinematics done by _read; coal asked again once on NEED_COAL)
-            code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
-            if code != rk_repeat.NEED_COAL:
-                break
-            self._refresh_fat(w.margins)
-            fat = self._fat
-        problem._invalidate()
-        problem.h = h
+        # (kinematics done by _read; no far pairs left out under order 2)
+        code, new_f, new_z, new_rep, opts = self._repeat_kernel(ctx, h, w.MB1, w.FB1, False, False)
         if code != rk_repeat.OK or self._jumped_pairs(new_rep, att.specs):
             return None
         for k, spec in enumerate(att.specs):
@@ -1035,22 +1003,51 @@ class ImplicitContactStepper:
             u[s] = new_z[lay.v_index[att.sk_pos[s]]]
         if self._uncovered(frozenset(map(tuple, ctx.candidates.tolist())), u, self._world_vector(u), state):
             return None
+        iterations, residual = self._repeat_counts(ctx, opts)
+        new_memory = memory.carried_arrays(new_f, new_z, new_rep)
+        contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
+        first = (problem, att, new_z, iterations, residual, new_memory, contacts)
+        second = self._split_end(first, u, {}, t0, h)
+        if isinstance(second, StepReport):
+            return second
+        self._last, self._last_support, self._far = new_memory, {}, {}
+        iterations, residual, contacts = second
+        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, "", lay.n)
+
+    def _repeat_kernel(self, ctx, h, MB, FB, kin, use_far):
+        """repeat_kernels.step on ctx's problem from the last step's memory, with this step's
+        solver options; coal asked again once on NEED_COAL. MB, FB: the skeleton tables the rows
+        read; kin: the kernel does the kinematics (False: _read did). (code, the next memory's
+        pair parameters, solution and reports, the options)."""
+        w, problem, memory = self._world, ctx.problem, self._last
+        opts = self._retry_options() if self._retrying else self.options.solver
+        if ctx.solver is None or ctx.solver[0] is not opts:
+            ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
+        S, SP = ctx.solver[1], ctx.solver[2]
+        new_f, new_z, new_rep = np.empty_like(problem.tables.pair_f), np.empty(problem.layout.n), np.empty_like(problem._rep)
+        args = (w.bundle, problem.bundle, S, SP, ctx.bundle, MB, FB)
+        tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h,
+                self.options.contact_tolerance, self.options.solver.tol, _TOUCH, _AXIS_LIMIT, use_far)
+        fat = self._fat
+        code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], kin, *tail)
+        if code == rk_repeat.NEED_COAL:
+            self._refresh_fat(w.margins)
+            fat = self._fat
+            code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
+        problem._invalidate()
+        problem.h = h
+        return code, new_f, new_z, new_rep, opts
+
+    @staticmethod
+    def _repeat_counts(ctx, opts):
+        """(Newton iterations, natural residual) of the repeat kernel's solve, its polish counted
+        when it was kept (step_solver.solve's rule)."""
+        buf, pbuf = ctx.solver[3], ctx.solver[4]
         polished = pbuf.fbuf[ncp.F_RESIDUAL] < buf.fbuf[ncp.F_RESIDUAL] and \
             buf.fbuf[ncp.F_RESIDUAL] > 1e-3 * opts.tol
         iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
         residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
-        new_memory = memory.carried_arrays(new_f, new_z, new_rep)
-        contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
-        first = (problem, att, new_z, iterations, residual, new_memory, contacts)
-        v_l = w.V.copy()
-        hf = self._to_end_positions(u, h)
-        v_next, second = self._stage2_step(first, u, hf, {}, t0, h)
-        if isinstance(second, StepReport):
-            return second
-        self._write_end_velocities(v_next, v_l, h)
-        self._last, self._last_support, self._far = new_memory, {}, {}
-        iterations, residual, contacts = second
-        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, "", lay.n)
+        return iterations, residual
 
     def _repeat_free_flight(self, ctx, h, t0) -> StepReport | None:
         """_repeat_step when no pair was near: the same candidates, all far, and still out of reach
