@@ -74,30 +74,24 @@ import numpy as np
 
 from . import ncp
 from . import step_solver
+from .memory import _tangents
 from .rows import velocity as rv
 
 
 def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
     """A pair's frame at l as rows/contact.py's Q_N0.. columns read it (15,): n (unit, body 1 into
-    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (rows/contact.py: t = (e - (e.n) n)
-    / |...|, o = n x t), levers a1 - p1, a2 - p2 (p_b: the body origins at l). a1, a2, normal: dim
+    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (memory._tangents, as
+    rows/contact.py), levers a1 - p1, a2 - p2 (p_b: the body origins at l). a1, a2, normal: dim
     entries; p1, p2: 3. (Scalar arithmetic: this runs for every split pair of every step.)"""
     out = np.zeros(15)
     nx, ny = float(normal[0]), float(normal[1])
     nz = float(normal[2]) if dim == 3 else 0.0
     s = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    nx, ny, nz = nx * s, ny * s, nz * s
+    out[0:3] = (nx * s, ny * s, nz * s)
     if dim == 3:
-        ex, ey, ez = float(axis[0]), float(axis[1]), float(axis[2])
-        en = ex * nx + ey * ny + ez * nz
-        tx, ty, tz = ex - en * nx, ey - en * ny, ez - en * nz
-        s = 1.0 / math.sqrt(tx * tx + ty * ty + tz * tz)
-        tx, ty, tz = tx * s, ty * s, tz * s
-        out[6:9] = (ny * tz - nz * ty, nz * tx - nx * tz, nx * ty - ny * tx)
+        _tangents(out[0:3], np.asarray(axis, float), out[3:6], out[6:9])
     else:
-        tx, ty, tz = -ny, nx, 0.0
-    out[0:3] = (nx, ny, nz)
-    out[3:6] = (tx, ty, tz)
+        out[3:5] = (-out[1], out[0])
     for i in range(dim):
         out[9 + i] = a1[i] - p1[i]
         out[12 + i] = a2[i] - p2[i]
