@@ -218,3 +218,41 @@ def test_order_2_lands_a_nearly_flat_superquadric_and_brings_it_to_rest(monkeypa
     assert record.min_gap >= -stab.PEN_TOL
     rest = next(c for c in record.checks if c.text.startswith("|final height"))
     assert rest.ok, rest.describe()
+
+
+FALLBACK_ATOL = 1e-12      # m, m/s: the same [GI] step on the same state, up to round-off
+
+
+def test_order_2_falls_back_to_order_1_when_stage_1_fails(monkeypatch):
+    """A split step whose first stage fails (DART still at l) is taken as [GI]'s step: with
+    stage 1 made to fail on every step with contact, a ball sliding to rolling under order 2
+    follows order 1's trajectory, every step counted in order1_steps; without the fallback the
+    first step raises StepFailure."""
+    h, v0, steps = 0.002, 2.0, 40
+
+    def run(order):
+        world = dart_world(h)
+        ground_box(world, mu=0.3)
+        ball = cv.ball(world, 0.3, 0.1, [v0, 0.0, 0.0])
+        stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
+        for _ in range(steps):
+            stepper.step()
+        return stepper, np.concatenate([ball.getPositions(), ball.getVelocities()])
+
+    _, reference = run(1)
+    real_stage1 = ic.ImplicitContactStepper._stage1
+
+    def failing_stage1(self, state, pairs, joints, t0):
+        if not pairs:
+            return real_stage1(self, state, pairs, joints, t0)
+        return None, ic.StepReport(False, 0, np.inf, "MAX_ITERATIONS", (), t0, 1, "stage 1 made to fail", 0)
+
+    monkeypatch.setattr(ic.ImplicitContactStepper, "_stage1", failing_stage1)
+    stepper, fallen_back = run(2)
+    assert stepper.order1_steps == steps
+    np.testing.assert_allclose(fallen_back, reference, rtol=0.0, atol=FALLBACK_ATOL)
+    assert fallen_back[9] - 0.1 * fallen_back[7] > 0.1     # still sliding at 0.08 s: friction rows active
+
+    monkeypatch.setattr(ic.ImplicitContactStepper, "_one_step", ic.ImplicitContactStepper._split_step)
+    with pytest.raises(ic.StepFailure):
+        run(2)
