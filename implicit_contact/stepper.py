@@ -242,9 +242,8 @@ class ImplicitContactStepper:
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._retrying = False
-        self._order1_fallback = False   # order 2 taking one step as [GI]'s (_one_step)
-        self._stage1_failed = False
-        self.order1_steps = 0           # order 2: steps (or substeps) taken by that fallback
+        self._order1_fallback = False   # order 2 taking one step as [GI]'s (_order1_step)
+        self.order1_steps = 0           # order 2: the (sub)steps of completed steps taken by that fallback
         self._check_state_finite()
         if self.options.order == 2:
             self._check_order2()
@@ -342,7 +341,8 @@ class ImplicitContactStepper:
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
         snap = self._begin()
-        saved = (self._last, dict(self._last_support), dict(self._far), self._ctx, self._last_joint)
+        saved = (self._last, dict(self._last_support), dict(self._far), self._ctx, self._last_joint,
+                 self.order1_steps)
         self._forced_limits = {}
 
         def attempt(n):
@@ -354,7 +354,7 @@ class ImplicitContactStepper:
                 adapter.restore(self.world, snap)
                 self._world.raw_valid = False
                 self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
-                self._ctx, self._last_joint = saved[3], saved[4]
+                self._ctx, self._last_joint, self.order1_steps = saved[3], saved[4], saved[5]
                 self._forced_limits = {}
             return report
 
@@ -479,30 +479,30 @@ class ImplicitContactStepper:
     def _one_step(self, h, keep=frozenset()) -> StepReport:
         """One step of h; keep: candidate pairs the far-pair filter must not leave out."""
         if self.options.order == 2:
-            self._stage1_failed = self._order1_fallback = False
-            report = self._split_step(h, keep)
-            if report.success or not self._stage1_failed:
-                return report
-            # order-1 fallback: a split step whose first stage failed (DART still at l) is taken
-            # as [GI]'s step; its guarantees at l+1 are the same, its order is one for that step.
-            # The case: 30 superquadrics dropped into a box (comparisons/stability.py) raised
-            # StepFailure at t = 0.30 s under order 2 (stage 1 MAX_ITERATIONS even at h / 16) where
-            # order 1 takes the same state in one solve; guarded by tests/test_rattle.py::
-            # test_order_2_falls_back_to_order_1_when_stage_1_fails
-            self.order1_steps += 1
-            self._order1_fallback = True
-            try:
-                report = self._gi_step(h, keep)
-            finally:
-                self._order1_fallback = False
-            self._ctx = None                      # (its structure is not a split step's)
-            return report
+            return self._split_step(h, keep)
         return self._gi_step(h, keep)
+
+    def _order1_step(self, h, keep, failed) -> StepReport:
+        """Order 2's fallback: a split step whose first stage failed (failed: its report; DART is
+        still at l) is taken as [GI]'s step, whose guarantees at l+1 are the same and whose order
+        is one for that step. The case: 30 superquadrics dropped into a box (comparisons/
+        stability.py) raised StepFailure at t = 0.30 s under order 2 (stage 1 MAX_ITERATIONS even
+        at h / 16) where order 1 takes the same state in one solve; guarded by tests/test_rattle.py::
+        test_order_2_falls_back_to_order_1_when_stage_1_fails."""
+        self._order1_fallback = True          # (_problem: [GI]'s skeleton tables, not stage 1's)
+        try:
+            report = self._gi_step(h, keep)
+        finally:
+            self._order1_fallback = False
+        self._ctx = None                      # (its structure is not a split step's)
+        if report.success:
+            self.order1_steps += 1
+        return report
 
     def _gi_step(self, h, keep=frozenset()) -> StepReport:
         """One step of [GI] (order 1); keep as in _one_step."""
         t0 = self.world.getTime()
-        if not keep and not self._order1_fallback:
+        if not keep:
             report = self._repeat_step(h, t0)
             if report is not None:
                 return report
@@ -579,8 +579,7 @@ class ImplicitContactStepper:
         joints = self._stage1_joints(state)
         u, first = self._stage1(state, ordered, joints, t0)
         if isinstance(first, StepReport):
-            self._stage1_failed = True           # DART is still at l (_one_step's fallback)
-            return first
+            return self._order1_step(h, keep, first)
         violated = self._uncovered(candidates, u, self._world_vector(u), state)
         if violated:
             # a pair the broadphase did not see could touch at the solved velocities: again with it
