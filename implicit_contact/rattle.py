@@ -241,7 +241,7 @@ class Stage2:
         x[self.jcol] = 0.0
         return x
 
-    def solve(self, options: ncp.SolverOptions, converged_at: float | None = None):
+    def solve(self, options: ncp.SolverOptions, converged_at: float | None = None, budget=None):
         """ncp.solve_mcp on (R5)-(R7); its starts and recoveries, in order, each tried when the
         one before did not converge (measured: boxes and prisms landing on a face or a corner in
         the face-contact campaign, whose stage 2 stopped at the iteration cap from start()):
@@ -253,20 +253,21 @@ class Stage2:
              stopped at 50 iterations; the corner's impulses ~1e3 s_p reach a natural residual
              of 9e-13, round-off, within the solver's tolerance).
         Returns the first result that converges (or whose residual is at most converged_at), else
-        the one with the smallest residual."""
+        the one with the smallest residual. budget: the step's (budget.Budget), checked before
+        and charged after every solve; None: no limit."""
         best = None
         for attempt in (self.start, self.cold_start, None):
             if attempt is None:
-                res = self.proximal(options)
+                res = self.proximal(options, budget=budget)
             else:
-                res = step_solver.solve_stage2(self, attempt(), options)
+                res = _charged(budget, options, lambda o: step_solver.solve_stage2(self, attempt(), o))
             if res.success or (converged_at is not None and res.residual <= converged_at):
                 return res
             if best is None or res.residual < best.residual:
                 best = res
         return best
 
-    def proximal(self, options, steps=(1.0, 1e-1, 1e-2), outer=100):
+    def proximal(self, options, steps=(1.0, 1e-1, 1e-2), outer=100, budget=None):
         """The proximal-point recovery of solve(): for each eps, up to `outer` solves of
         F(x) + eps D (x - x_k) = 0 (D: 1 on the impulse unknowns) from and around x_k, then the
         undamped problem from the last x_k; returns that last solve's result."""
@@ -276,14 +277,15 @@ class Stage2:
         for eps in steps:
             for _ in range(outer):
                 xk = x.copy()
-                res = ncp.solve_mcp(lambda z: self.fun(z) + eps * mask * (z - xk),
-                                    lambda z: self.jac(z) + eps * np.diag(mask), x, self.lower, self.upper, options)
+                res = _charged(budget, options, lambda o: ncp.solve_mcp(
+                    lambda z: self.fun(z) + eps * mask * (z - xk), lambda z: self.jac(z) + eps * np.diag(mask),
+                    x, self.lower, self.upper, o))
                 if not np.all(np.isfinite(res.x)):
                     break
                 x = res.x
                 if np.max(np.abs(x - xk)) <= 1e-9 * (1.0 + np.max(np.abs(x))):
                     break
-        return ncp.solve_mcp(self.fun, self.jac, x, self.lower, self.upper, options)
+        return _charged(budget, options, lambda o: ncp.solve_mcp(self.fun, self.jac, x, self.lower, self.upper, o))
 
     def impulses(self, x):
         """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""
@@ -296,3 +298,13 @@ class Stage2:
                 P[3] = x[c + 1 + nt]
             out.append(P)
         return out
+
+
+def _charged(budget, options, solve):
+    """solve(options) within the step's budget (budget.py; None: no limit)."""
+    if budget is None:
+        return solve(options)
+    budget.check()
+    res = solve(budget.options(options))
+    budget.spend(res.iterations)
+    return res

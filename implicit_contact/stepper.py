@@ -38,6 +38,7 @@ import warnings
 import numpy as np
 
 from . import bundles
+from . import budget as step_budget
 from . import dart_adapter as adapter
 from . import formulation as fm
 from . import joint_rows
@@ -78,6 +79,11 @@ class StepperOptions:
     order: 1 is [GI] as printed (first order); 2 the split step of rattle.py (second order in
         free flight and persistent contact; two solves per step; no quasi-rigid layers and no
         joint springs or dampers yet, refused at construction).
+    max_step_iterations: the Newton iterations one call of step() may spend over all its solves,
+        recoveries and halvings (budget.py); when they are spent the step fails at once, the world
+        unchanged (StepFailure, or a failed report under on_failure="warn"). None: no limit.
+    max_step_seconds: the same for wall time [s] (checked between solves; machine-dependent,
+        so None by default: the iteration budget is the deterministic one).
     """
     contact_tolerance: float = 1e-6
     solver: ncp.SolverOptions = field(default_factory=lambda: DEFAULT_SOLVER)
@@ -87,6 +93,8 @@ class StepperOptions:
     skip_far_pairs: bool = True
     patch_torsion: bool = True
     order: int = 1
+    max_step_iterations: int | None = 20000
+    max_step_seconds: float | None = None
 
     def __post_init__(self):
         if not (self.contact_tolerance > 0 and math.isfinite(self.contact_tolerance)):
@@ -95,6 +103,13 @@ class StepperOptions:
             raise ValueError(f"max_halvings must be an integer in 0..12, got {self.max_halvings}")
         if not (isinstance(self.retry_iterations_factor, int) and self.retry_iterations_factor >= 1):
             raise ValueError(f"retry_iterations_factor must be an integer >= 1, got {self.retry_iterations_factor}")
+        if self.max_step_iterations is not None and not (
+                isinstance(self.max_step_iterations, int) and self.max_step_iterations >= 1):
+            raise ValueError(f"max_step_iterations must be an integer >= 1 or None, got {self.max_step_iterations!r}")
+        if self.max_step_seconds is not None and not (
+                self.max_step_seconds > 0 and math.isfinite(self.max_step_seconds)):
+            raise ValueError(f"max_step_seconds must be a positive number of seconds or None, got "
+                             f"{self.max_step_seconds!r}")
         if self.order not in (1, 2):
             raise ValueError(f"order must be 1 ([GI]) or 2 (rattle.py), got {self.order!r}")
 
@@ -136,6 +151,7 @@ class StepReport:
     substeps: int = 1
     message: str = ""
     unknowns: int = 0
+    spent: int = 0             # Newton iterations of the whole call of step(), failed attempts included
 
 
 class StepFailure(RuntimeError):
@@ -147,6 +163,7 @@ class StepFailure(RuntimeError):
 
 
 POLICIES = ("raise", "warn", "retry")
+BUDGET_EXHAUSTED = "BUDGET_EXHAUSTED"   # StepReport.status of a step that spent its budget (budget.py)
 
 # The step's rows mix velocities, lengths and dimensionless gradients, and a position row moves
 # only by h times a velocity change: near the solution a Newton step of O(1) (in scaled impulse
@@ -242,6 +259,7 @@ class ImplicitContactStepper:
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._retrying = False
+        self._budget = None        # the budget of the step under way (step; budget.py)
         self._order1_fallback = False   # order 2 taking one step as [GI]'s (_order1_step)
         self.order1_steps = 0           # order 2: the (sub)steps of completed steps taken by that fallback
         self._check_state_finite()
@@ -336,7 +354,8 @@ class ImplicitContactStepper:
         return sum(0.5 * c["k"] * c["deflection"] ** 2 for c in self._last.values() if c["k"] > 0.0)
 
     def step(self) -> StepReport:
-        """Advance the world by world.getTimeStep(); transactional (see on_failure)."""
+        """Advance the world by world.getTimeStep(); transactional (see on_failure), within the
+        step's budget (StepperOptions.max_step_iterations, max_step_seconds; budget.py)."""
         h = self.world.getTimeStep()
         if not (math.isfinite(h) and h > 0):
             raise ValueError(f"the world's time step must be positive and finite, got {h}")
@@ -344,10 +363,16 @@ class ImplicitContactStepper:
         saved = (self._last, dict(self._last_support), dict(self._far), self._ctx, self._last_joint,
                  self.order1_steps)
         self._forced_limits = {}
+        budget = self._budget = step_budget.Budget(self.options.max_step_iterations, self.options.max_step_seconds)
 
         def attempt(n):
             """n substeps of h / n; a failed attempt leaves the world and the warm starts as before."""
-            report = self._substeps(h / n, n)
+            try:
+                report = self._substeps(h / n, n)
+            except step_budget.BudgetExhausted as exc:
+                report = StepReport(False, budget.spent, math.nan, BUDGET_EXHAUSTED, (), self.world.getTime(), n,
+                                    f"{exc} ({budget.elapsed():.3g} s) at t = {snap.time:.6g} s, "
+                                    f"h = {h:g} in {n} substeps, without converging.")
             if report.success:
                 adapter.finish_step(self.world, h, self._world.all_skeletons)
             else:
@@ -356,12 +381,34 @@ class ImplicitContactStepper:
                 self._last, self._last_support, self._far = saved[0], dict(saved[1]), dict(saved[2])
                 self._ctx, self._last_joint, self.order1_steps = saved[3], saved[4], saved[5]
                 self._forced_limits = {}
-            return report
+            return replace(report, spent=budget.spent)
 
+        try:
+            report = self._attempts(attempt)
+        finally:
+            self._budget = None
+        if report.success:
+            return report
+        if report.status == BUDGET_EXHAUSTED:
+            message = report.message + " The world is unchanged; raise the budget or lower h."
+        elif self.on_failure == "retry":
+            message = report.message + f" Retried with up to {2 ** self.options.max_halvings} substeps; " \
+                                       "the world is unchanged."
+        else:
+            message = report.message + " The world is unchanged."
+        if self.on_failure == "warn":
+            warnings.warn(message, RuntimeWarning, stacklevel=2)
+            return report
+        raise StepFailure(message, report)
+
+    def _attempts(self, attempt) -> StepReport:
+        """The failure policy's attempts, in order, until one succeeds, the budget is spent or the
+        policy has none left: h; h again with every candidate pair when far pairs were left out;
+        under "retry" 2, 4, ... substeps."""
         self._retrying = False
         self._all_pairs = self._left_out = False
         report = attempt(1)
-        if report.success:
+        if report.success or report.status == BUDGET_EXHAUSTED:
             return report
         if self._left_out:
             # the far pairs left out change the Newton path, not the solution; a failed step is
@@ -369,20 +416,15 @@ class ImplicitContactStepper:
             # box, a landing step that failed at h / 16 without them converged at h in 7 iterations)
             self._all_pairs = True
             report = attempt(1)
-            if report.success:
+            if report.success or report.status == BUDGET_EXHAUSTED:
                 return report
         if self.on_failure == "retry":
             self._retrying = True
             for k in range(1, self.options.max_halvings + 1):
                 report = attempt(2 ** k)
-                if report.success:
+                if report.success or report.status == BUDGET_EXHAUSTED:
                     return report
-            raise StepFailure(report.message + f" Retried with up to {2 ** self.options.max_halvings} "
-                              "substeps; the world is unchanged.", report)
-        if self.on_failure == "warn":
-            warnings.warn(report.message + " The world is unchanged.", RuntimeWarning, stacklevel=2)
-            return report
-        raise StepFailure(report.message + " The world is unchanged.", report)
+        return report
 
     # -- construction helpers ------------------------------------------------------------------
     def _body_of(self, node) -> int:
@@ -719,7 +761,7 @@ class ImplicitContactStepper:
             if self._stage2_solver is None or self._stage2_solver[0] is not self.options.solver:
                 self._stage2_solver = (self.options.solver, replace(self.options.solver,
                                                                     tol=STAGE2_TOL * self.options.solver.tol))
-            res2 = stage2.solve(self._stage2_solver[1], converged_at=self.options.solver.tol)
+            res2 = stage2.solve(self._stage2_solver[1], converged_at=self.options.solver.tol, budget=self._budget)
             iterations += res2.iterations
             residual = max(residual, res2.residual)
             if not (res2.success or res2.residual <= self.options.solver.tol):   # (see STAGE2_TOL)
@@ -1045,6 +1087,9 @@ class ImplicitContactStepper:
         pair parameters, solution and reports, the options)."""
         w, problem, memory = self._world, ctx.problem, self._last
         opts = self._retry_options() if self._retrying else self.options.solver
+        if self._budget is not None:
+            self._budget.check()
+            opts = self._budget.options(opts)
         if ctx.solver is None or ctx.solver[0] is not opts:
             ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
         S, SP = ctx.solver[1], ctx.solver[2]
@@ -1060,6 +1105,8 @@ class ImplicitContactStepper:
             code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
         problem._invalidate()
         problem.h = h
+        if self._budget is not None:
+            self._budget.spend(self._repeat_counts(ctx, opts)[0])
         return code, new_f, new_z, new_rep, opts
 
     @staticmethod
@@ -1450,8 +1497,15 @@ class ImplicitContactStepper:
     def _solve(self, problem, z0, sync=True):
         """step_solver.solve (compiled, polished; see there), with the retry policy's budget."""
         opts = self._retry_options() if self._retrying else self.options.solver
+        budget = self._budget
+        if budget is not None:
+            budget.check()
+            opts = budget.options(opts)
         try:
-            return step_solver.solve(problem, z0, opts, sync)
+            result = step_solver.solve(problem, z0, opts, sync)
+            if budget is not None:
+                budget.spend(result.iterations)
+            return result
         except (ZeroDivisionError, FloatingPointError, OverflowError, ValueError) as exc:
             if isinstance(exc, ValueError) and "math domain" not in str(exc):
                 raise

@@ -164,3 +164,75 @@ def test_box_started_down_flat_with_spin_lands_in_one_step(name, order):
     (c,) = [c for c in report.contacts if c.p_n > 0]
     assert c.p_n == pytest.approx(m * (abs(v[2]) + G * h), rel=1e-9)
     assert skel.computeKineticEnergy() + skel.computePotentialEnergy() < energy
+
+
+def _slap(name, options, on_failure="retry"):
+    """The world of test_box_started_down_flat_with_spin_lands_in_one_step and its stepper."""
+    h, size, m, w, v = SLAPS[name]
+    world = dart_world(h)
+    ground_box(world, mu=0.5)
+    skel, _ = _box(world, size, m, 0.5, [0.0, 0.0, size[2] / 2])
+    skel.setVelocities(np.r_[w, v])
+    return world, skel, ic.ImplicitContactStepper(world, on_failure=on_failure, options=options)
+
+
+BUDGET = 3     # Newton iterations: fewer than the slap's landing step takes (it takes tens)
+
+
+@pytest.mark.parametrize("on_failure", ["retry", "raise", "warn"])
+def test_a_step_that_spends_its_iteration_budget_fails_at_once_with_the_world_unchanged(on_failure, order):
+    """The wide box's landing slap needs more Newton iterations than BUDGET: with
+    max_step_iterations = BUDGET the step fails after at most BUDGET + 1 (one polishing step)
+    iterations, without halving (substeps 1), and the world is exactly as before (q, v, time);
+    with the default budget the same step lands, having spent more than BUDGET."""
+    _, _, free = _slap("wide box", ic.StepperOptions(order=order))
+    landed = free.step()
+    assert landed.success and landed.spent > BUDGET + 1 and landed.spent >= landed.iterations
+
+    world, skel, stepper = _slap("wide box", ic.StepperOptions(order=order, max_step_iterations=BUDGET), on_failure)
+    before = (skel.getPositions().copy(), skel.getVelocities().copy(), world.getTime())
+    if on_failure == "warn":
+        with pytest.warns(RuntimeWarning, match="max_step_iterations"):
+            report = stepper.step()
+    else:
+        with pytest.raises(ic.StepFailure, match="max_step_iterations") as info:
+            stepper.step()
+        report = info.value.report
+    assert not report.success and report.status == "BUDGET_EXHAUSTED"
+    assert report.substeps == 1 and report.spent <= BUDGET + 1
+    np.testing.assert_array_equal(skel.getPositions(), before[0])
+    np.testing.assert_array_equal(skel.getVelocities(), before[1])
+    assert world.getTime() == before[2]
+    assert stepper.order1_steps == 0
+
+
+def test_a_step_past_its_wall_time_budget_fails_before_its_next_solve(order):
+    """max_step_seconds = 1e-9 s has passed before the first solve: the step fails having spent
+    no Newton iteration, the world unchanged, and a stepper without the limit then lands it."""
+    world, skel, stepper = _slap("wide box", ic.StepperOptions(order=order, max_step_seconds=1e-9), "raise")
+    before = (skel.getPositions().copy(), skel.getVelocities().copy())
+    with pytest.raises(ic.StepFailure, match="max_step_seconds") as info:
+        stepper.step()
+    assert info.value.report.spent == 0
+    np.testing.assert_array_equal(skel.getPositions(), before[0])
+    np.testing.assert_array_equal(skel.getVelocities(), before[1])
+    assert ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order)).step().success
+
+
+def test_a_budget_that_is_not_reached_changes_nothing(order):
+    """The slap and 20 steps of resting after it with max_step_iterations = None and with the
+    default budget: the same trajectory bit for bit."""
+    runs = []
+    for limit in (None, ic.StepperOptions().max_step_iterations):
+        _, skel, stepper = _slap("tall box", ic.StepperOptions(order=order, max_step_iterations=limit))
+        for _ in range(20):
+            stepper.step()
+        runs.append(np.r_[skel.getPositions(), skel.getVelocities()])
+    np.testing.assert_array_equal(runs[0], runs[1])
+
+
+@pytest.mark.parametrize("field, value", [("max_step_iterations", 0), ("max_step_iterations", 2.5),
+                                          ("max_step_seconds", 0.0), ("max_step_seconds", math.inf)])
+def test_a_budget_that_is_not_a_budget_is_refused(field, value):
+    with pytest.raises(ValueError, match=field):
+        ic.StepperOptions(**{field: value})
