@@ -810,6 +810,7 @@ class ImplicitContactStepper:
         solution when it had the pair (the same way round: _pair_spec builds a persisting pair
         from that memory), else from a static solve at l; None for a pair open at l (rattle.py:
         an impact takes stage 1's impulse where it lands)."""
+        self._checkpoint()
         first, second = spec.objects
         d = spec.dim
         poses = state.poses_now
@@ -1486,6 +1487,14 @@ class ImplicitContactStepper:
         return self._far.get(frozenset((oi.key, oj.key)))
 
     # -- pieces of a step ------------------------------------------------------------------------
+    def _checkpoint(self):
+        """The step's budget checked before a static closest-point solve (closest.py, plain
+        Python, not counted in Newton iterations): a hexagonal prism landing (face-contact
+        campaign, --repro 2099577737,land,prism,0.018837255077567443) spent 26.7 s of a step
+        that took 61 Newton iterations in such solves, so only max_step_seconds bounds them."""
+        if self._budget is not None:
+            self._budget.check()
+
     def _retry_options(self) -> ncp.SolverOptions:
         """The solver options of a retried step's substeps: they are the hard ones (measured: a box
         slapping flat onto the ground converges in ~100 LM iterations), so a larger budget."""
@@ -1661,6 +1670,7 @@ class ImplicitContactStepper:
         body 1, k1 = the table's top face goes inactive at its edge and eqs 28-32 then admit
         interpenetrating points). Chosen from the static closest points when the pair appears,
         kept while it lasts; flip=True swaps it (the stepper's answer to a stale k1)."""
+        self._checkpoint()
         pair = frozenset((oi.key, oj.key))
         known = self._orientation.get(pair)
         alive = (oi.key, oj.key) in self._last or (oj.key, oi.key) in self._last
@@ -1720,6 +1730,7 @@ class ImplicitContactStepper:
         """A new pair's start (a1, a2, l1, l2): static closest points at l (the central touch point
         if touching) and their multipliers; sets the pair's k1, and its tangent axis from the
         normal."""
+        self._checkpoint()
         first, second = spec.objects
         d = spec.dim
         poses_now = state.poses_now
