@@ -33,23 +33,19 @@ class Budget:
         self.solves = 0
         self._capped = None     # (options, left, the options capped to left)
 
-    def check(self):
-        """Raise BudgetExhausted if no iteration or no time is left."""
+    def admit(self, options):
+        """Before a solve: raise BudgetExhausted if no iteration or no time is left, else return
+        options (ncp.SolverOptions) with max_iterations lowered to the iterations left (None for
+        a solve that takes none: a static closest-point solve)."""
         if self.spent >= self.limit:
             raise BudgetExhausted(f"the step spent its budget of {self.limit} Newton iterations "
                                   f"(StepperOptions.max_step_iterations) in {self.solves} solves")
-        now = time.perf_counter()
-        if now > self.deadline:
+        if time.perf_counter() > self.deadline:
             raise BudgetExhausted(f"the step spent its budget of {self.seconds:g} s "
                                   f"(StepperOptions.max_step_seconds) in {self.solves} solves, "
                                   f"{self.spent} Newton iterations")
-
-    def spend(self, iterations):
-        self.spent += int(iterations)
-        self.solves += 1
-
-    def options(self, options):
-        """options (ncp.SolverOptions) with max_iterations lowered to the iterations left."""
+        if options is None:
+            return None
         left = self.limit - self.spent
         if left >= options.max_iterations:
             return options
@@ -57,6 +53,10 @@ class Budget:
         if self._capped is None or self._capped[0] is not options or self._capped[1] != left:
             self._capped = (options, left, replace(options, max_iterations=left))
         return self._capped[2]
+
+    def spend(self, iterations):
+        self.spent += int(iterations)
+        self.solves += 1
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.start

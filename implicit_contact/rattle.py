@@ -304,7 +304,6 @@ def _charged(budget, options, solve):
     """solve(options) within the step's budget (budget.py; None: no limit)."""
     if budget is None:
         return solve(options)
-    budget.check()
-    res = solve(budget.options(options))
+    res = solve(budget.admit(options))
     budget.spend(res.iterations)
     return res
