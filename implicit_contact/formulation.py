@@ -271,7 +271,8 @@ class StepProblem:
                          spec.compliant_side, c0, end - c0,
                          rel(sl.a1[0]), len(sl.a1), rel(sl.a2[0]), len(sl.a2), rel(sl.l1[0]), rel(sl.l2[0]),
                          rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
-                         rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof, int(spec.start_frame is not None)]
+                         rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof, int(spec.start_frame is not None),
+                         rel(sl.s)]
         fpar = np.array([r for group in rows for r in group]) if rows else np.zeros((1, 25))
         sk_i = np.zeros((len(skeletons), rd.NKI), np.int64)
         off = 0

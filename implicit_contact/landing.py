@@ -243,33 +243,26 @@ def faceted_pairs(problem) -> list:
 def separated_face_seed(first, second, now, pred, normal, band):
     """Closest points to seed a separated pair of faceted pieces whose faces are parallel (within
     band) at l: the static closest points are then a whole face and the solver returns any of
-    them, while at l+1 the faces tilt and the closest point is the face point that the free
-    step brings nearest the other piece (a cylinder hovering 20 um above the ground on its cap,
+    them, while at l+1 the faces tilt and the closest point is the point of the faces' overlap
+    that the free step brings nearest (a cylinder hovering 20 um above the ground on its cap,
     tilting at 0.2 rad/s: its rim). now, pred: the two pieces' poses (R, p) at l and after the
-    free step; normal from piece 1 into piece 2. Returns (a1, a2) at l, or None when the faces
-    are not parallel (a vertex or an edge is then the unique closest point)."""
+    free step; normal from piece 1 into piece 2. The candidates are the vertices of the overlap
+    of the two faces (patch_points), each on piece 1's face (a1) and on piece 2's (a2); a vertex
+    of either face alone may lie off the other piece (a small prism above a large ground box: the
+    box's corner 2 m away). Returns (a1, a2) at l, or None when the faces are not parallel (a
+    vertex or an edge is then the unique closest point) or do not overlap."""
     n = np.asarray(normal, float) / np.linalg.norm(normal)
-    faces = []
-    for sign, obj, (R, p), (Rp, pp) in ((1.0, first, now[0], pred[0]), (-1.0, second, now[1], pred[1])):
-        if obj.face_half:
-            faces.append(None)
-            continue
-        X = obj.face @ R.T + p
-        height = sign * (X @ n)
-        on = X[height >= height.max() - band]
-        ahead = sign * ((on - p) @ R @ Rp.T + pp) @ n       # each face point's height after the free step
-        faces.append((on, ahead))
-    if faces[1] is not None and len(faces[1][0]) > 1:
-        on, ahead = faces[1]
-        a2 = on[int(np.argmin(-ahead))]                    # piece 2's point that comes nearest
-        top = _support(first, *now[0], n)
-        return a2 - (a2 @ n - top) * n, a2
-    if faces[0] is not None and len(faces[0][0]) > 1:
-        on, ahead = faces[0]
-        a1 = on[int(np.argmax(ahead))]
-        bottom = -_support(second, *now[1], -n)
-        return a1, a1 + (bottom - a1 @ n) * n
-    return None
+    X = patch_points(first, second, now[0], now[1], n, band)
+    if len(X) < 2:
+        return None
+    top, bottom = _support(first, *now[0], n), -_support(second, *now[1], -n)
+    A1 = X - (X @ n - top)[:, None] * n
+    A2 = X - (X @ n - bottom)[:, None] * n
+    (R1, p1), (R1p, p1p) = now[0], pred[0]
+    (R2, p2), (R2p, p2p) = now[1], pred[1]
+    ahead = ((A2 - p2) @ R2 @ R2p.T + p2p) @ n - ((A1 - p1) @ R1 @ R1p.T + p1p) @ n
+    k = int(np.argmin(ahead))                             # the overlap point that comes nearest
+    return A1[k], A2[k]
 
 
 def vertex_depth(first, second, pose1, pose2) -> float:

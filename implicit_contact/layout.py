@@ -55,6 +55,13 @@ class PairSpec:
     start_frame: np.ndarray | None = None  # order 2's first stage (rattle.py): n, t, o and the
     #                                        levers a1 - p1, a2 - p2 at l (15,), else None
 
+    @property
+    def cone_form(self) -> bool:
+        """Whether body 1's normal is normalised by its multipliers' sum (rows/contact.py, eqs
+        28n-32n): body 1 an intersection (not a fixed half-space) of a rigid pair. Then no active
+        function k1 is chosen, and the pair has one more unknown, s (its scaled distance)."""
+        return len(self.obj1.functions) > 1 and not self.obj1.fixed_halfspace and self.compliance is None
+
 
 @dataclass
 class PairSlots:
@@ -75,6 +82,8 @@ class PairSlots:
     dbar: int = -1             # quasi-rigid pairs: algebraic offset, deflection, core impulse
     dn: int = -1               # (each row shares its unknown's index: (35), spring, core)
     p_nr: int = -1
+    s: int = -1                # cone-form pairs (PairSpec.cone_form): scaled distance; its row is
+    #                            sum_i l1_i = 1 (29n)
 
     def __post_init__(self):
         # the same blocks as slices (every block is contiguous), for fast reads and writes
@@ -186,6 +195,10 @@ def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = (), joint
         rows_geo = np.arange(base, base + 2 * d)
         lower += [-np.inf] * geo_free
         upper += [np.inf] * geo_free
+        s_col = -1
+        if spec.cone_form:
+            s_col = col; col += 1
+            lower.append(-np.inf); upper.append(np.inf)
         rows_l1 = np.arange(0)
         rows_l2 = np.arange(0)
         if not free_l1:
@@ -217,7 +230,7 @@ def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = (), joint
                 p_nr = col; col += 1
                 lower.append(0.0); upper.append(np.inf)
         slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
-                               p_n, rows_fric, dbar, dn, p_nr))
+                               p_n, rows_fric, dbar, dn, p_nr, s_col))
     support_slots, col = allocate_supports(col, supports, lower, upper)
     joint_index = []
     for s in range(len(nv_per_skeleton)):

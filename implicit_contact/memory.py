@@ -181,6 +181,43 @@ def _tangents(n, e, t, o):
 
 
 @kernel
+def _carry_multipliers(pi, oi, z_old, c0, o0, z0):
+    """A pair's multipliers from its memory (same functions, same sides), rescaled where the
+    memory's pair and the new one normalise body 1's normal differently (rows/contact.py: c_k1 = 1
+    with l_k1 the scaled distance, or the cone form's sum l = 1 with s)."""
+    m1, m2 = pi[rc.P_M1], pi[rc.P_M2]
+    scale, s = 1.0, 0.0
+    new_cone, old_cone = pi[rc.P_S] >= 0, oi[rc.P_S] >= 0
+    for i in range(m1):
+        z0[c0 + pi[rc.P_L1] + i] = z_old[o0 + oi[rc.P_L1] + i]
+    if new_cone and old_cone:
+        s = z_old[o0 + oi[rc.P_S]]
+    elif new_cone:                       # c = l with c_k1 = 1: l_i = c_i / sum c, s = l_k1 sum c
+        k1 = oi[rc.P_K1]
+        lk = z0[c0 + pi[rc.P_L1] + k1]
+        z0[c0 + pi[rc.P_L1] + k1] = 1.0
+        total = 0.0
+        for i in range(m1):
+            total += z0[c0 + pi[rc.P_L1] + i]
+        scale = 1.0 / total
+        for i in range(m1):
+            z0[c0 + pi[rc.P_L1] + i] *= scale
+        s = lk * total
+    elif old_cone:                       # the inverse, about the new pair's k1
+        k1 = pi[rc.P_K1]
+        lk = z0[c0 + pi[rc.P_L1] + k1]
+        if lk > 0.0:
+            scale = 1.0 / lk
+            for i in range(m1):
+                z0[c0 + pi[rc.P_L1] + i] *= scale
+            z0[c0 + pi[rc.P_L1] + k1] = z_old[o0 + oi[rc.P_S]] * lk
+    for i in range(m2):
+        z0[c0 + pi[rc.P_L2] + i] = scale * z_old[o0 + oi[rc.P_L2] + i]
+    if new_cone:
+        z0[c0 + pi[rc.P_S]] = s
+
+
+@kernel
 def warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, mem, old_i, old_f, z_old, rep_old,
                cold, h, z0):
     """z0 of a new step from the memory (module docstring): for every pair k with mem[k] >= 0
@@ -231,10 +268,7 @@ def warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, mem, 
                 for q in range(3):
                     acc += T[3 * q + c] * (a[q] - a0[q])
                 z0[c0 + col + c] = acc
-        for i in range(pi[rc.P_M1]):
-            z0[c0 + pi[rc.P_L1] + i] = z_old[o0 + oi[rc.P_L1] + i]
-        for i in range(pi[rc.P_M2]):
-            z0[c0 + pi[rc.P_L2] + i] = z_old[o0 + oi[rc.P_L2] + i]
+        _carry_multipliers(pi, oi, z_old, c0, o0, z0)
         sp_old, sp = of[rc.Q_SP], pf[rc.Q_SP]
         p_n = sp_old * z_old[o0 + oi[rc.P_PN]]
         pt0 = sp_old * z_old[o0 + oi[rc.P_PT]] if oi[rc.P_FR] else 0.0

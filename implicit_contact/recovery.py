@@ -200,12 +200,13 @@ def face_landing(stepper, att: Attempt, problem, result):
             continue
         spec, sl = problem.specs[k], problem.layout.pairs[k]
         poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
-        l1, l2, k1 = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
-        if k1 != spec.k1:
+        l1, l2, k1, s = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
+        if k1 != spec.k1 and not spec.cone_form:
             continue             # the layout's k1 is fixed for this problem
         problem.pack_points(z, k, found.x_end, found.x_end)
         s_p = spec.impulse_scale
-        z[sl.l1s], z[sl.l2s], z[sl.p_n] = l1, l2, found.P / s_p
+        _put_multipliers(z, sl, l1, l2, s)
+        z[sl.p_n] = found.P / s_p
         if sl.sigma >= 0:
             fr = spec.friction
             z[sl.p_ts] = found.p_to / s_p
@@ -274,14 +275,32 @@ RECOVERIES = (friction_rows, passed_through, flip_intersections, adopt_k1, face_
 # seeds and transfers
 # ---------------------------------------------------------------------------------------------
 def _multipliers(spec, P1, P2, a1, a2, normal):
-    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points.
+    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points:
+    (l1, l2, k1, s), s the scaled distance of a cone-form pair (rows/contact.py, eqs 28n-32n),
+    else None.
 
     hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
-    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1; touching points use the normal instead of a1 - a2."""
+    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1, or, in the cone form, l_i = hat-l_i / sum hat-l and
+    s = sum hat-l (k1 = the largest, for reports only); touching points use the normal instead of
+    a1 - a2."""
     _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
     _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
     d = a2 - a1
     m1 = len(G1)
+    if spec.cone_form:
+        touching = np.linalg.norm(d) <= 1e-12
+        lam, _ = nnls(G1.T, normal if touching else d)
+        k1 = int(np.argmax(lam))
+        total = float(lam.sum())
+        if total <= 0.0:         # no cone combination: the function nearest to active
+            f1, _ = fm.eval_functions(spec.obj1.functions, P1, a1)
+            lam, total = np.zeros(m1), 1.0
+            lam[int(np.argmax(f1))] = 1.0
+        l1 = lam / total
+        l2, _ = nnls(G2.T, -(l1 @ G1))
+        if spec.obj2.fixed_halfspace:
+            l2 = np.array([float(np.linalg.norm(l1 @ G1) / np.linalg.norm(G2[0]))])
+        return l1, l2, k1, 0.0 if touching else total
     if np.linalg.norm(d) > 1e-12:
         lam, _ = nnls(G1.T, d)
         k1 = int(np.argmax(lam)) if m1 > 1 else 0
@@ -301,11 +320,19 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
         l1 = np.array([float(np.linalg.norm(d))])
     if spec.obj2.fixed_halfspace:
         l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
-    return l1, l2, k1
+    return l1, l2, k1, None
+
+
+def _put_multipliers(z, sl, l1, l2, s):
+    """A pair's multipliers (and a cone-form pair's scaled distance s) into z at its slots sl."""
+    z[sl.l1s] = l1
+    z[sl.l2s] = l2
+    if sl.s >= 0:
+        z[sl.s] = s
 
 
 def _static_seed(problem, x, spec, tol, always=False):
-    """(a1, a2, l1, l2, k1) of pair ``spec`` from the static closest points at the poses the
+    """(a1, a2, l1, l2, k1, s) of pair ``spec`` from the static closest points at the poses the
     iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
     fixed half-space: its point below the plane); None if the static solve fails, unless always
     (then _closest_seed's fallbacks)."""
@@ -322,15 +349,14 @@ def _static_seed(problem, x, spec, tol, always=False):
     deepest = _below_plane_seed(spec, P) if res.overlapping else None
     if deepest is not None:
         a1, a2, normal = deepest
-    l1, l2, k1 = _multipliers(spec, P[0], P[1], a1, a2, normal)
-    return a1, a2, l1, l2, k1
+    return (a1, a2) + _multipliers(spec, P[0], P[1], a1, a2, normal)
 
 
 def _flip_seed(problem, x, spec, tol):
     """_static_seed of a pair whose bodies 1 and 2 were just swapped (spec: the new orientation):
-    (a1, a2, l1, l2); sets spec.k1 from it."""
-    a1, a2, l1, l2, spec.k1 = _static_seed(problem, x, spec, tol, always=True)
-    return a1, a2, l1, l2
+    (a1, a2, l1, l2, s); sets spec.k1 from it."""
+    a1, a2, l1, l2, spec.k1, s = _static_seed(problem, x, spec, tol, always=True)
+    return a1, a2, l1, l2, s
 
 
 def _flip_transfer(old, x, seeds, new) -> np.ndarray:
@@ -345,13 +371,15 @@ def _flip_transfer(old, x, seeds, new) -> np.ndarray:
 
 
 def _swap_into(old, x, new, z, seeds):
-    """The pairs in seeds (k -> (a1, a2, l1, l2) in the new frame) swapped bodies 1 and 2 between
-    old and new: their points and multipliers from the seeds, their impulses mapped (see
+    """The pairs in seeds (k -> (a1, a2, l1, l2, s) in the new frame) swapped bodies 1 and 2
+    between old and new: their points and multipliers from the seeds, their impulses mapped (see
     _flip_transfer)."""
-    for k, (a1, a2, l1, l2) in seeds.items():
+    for k, (a1, a2, l1, l2, s) in seeds.items():
         so, sn = old.layout.pairs[k], new.layout.pairs[k]
         new.pack_points(z, k, a1, a2)
-        z[sn.l1], z[sn.l2] = l1, l2
+        if sn.s >= 0 and s is None:          # a cone-form pair: s from the points (a start only)
+            s = float(np.linalg.norm(np.asarray(a2) - np.asarray(a1)))
+        _put_multipliers(z, sn, l1, l2, s)
         z[sn.p_n] = x[so.p_n] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
         if sn.sigma >= 0 and so.sigma >= 0:
             flip = np.array([-1.0, 1.0][: len(sn.p_t)])
@@ -378,7 +406,7 @@ def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
         ko, kn = old.keys[k], new.keys[k]
         if k not in skip and ko != kn and ko == kn[::-1]:
             st = old.unpack_pair(x, k)
-            swapped[k] = (st.a2, st.a1, st.l2, st.l1)
+            swapped[k] = (st.a2, st.a1, st.l2, st.l1, None)
     for a, b in zip(old.layout.v_index, new.layout.v_index):
         z[b] = x[a]
     for so, sn in zip(old.layout.supports, new.layout.supports):
@@ -391,7 +419,7 @@ def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
         z[sn.p_n] = x[so.p_n]
-        for name in ("dbar", "dn", "p_nr"):
+        for name in ("dbar", "dn", "p_nr", "s"):
             if getattr(sn, name) >= 0 and getattr(so, name) >= 0:
                 z[getattr(sn, name)] = x[getattr(so, name)]
         if sn.sigma < 0:
@@ -592,14 +620,13 @@ def _reseed(problem, x, tol, adopt_k1=()):
         seed = _static_seed(problem, x, spec, tol)
         if seed is None:
             continue
-        a1, a2, l1, l2, k1 = seed
+        a1, a2, l1, l2, k1, s = seed
         if k in adopt_k1:
             spec.k1 = k1         # the caller rebuilds the problem with it
-        elif k1 != spec.k1:
+        elif k1 != spec.k1 and not spec.cone_form:
             continue             # the layout's k1 is fixed for this problem; keep the old seed
         sl = problem.layout.pairs[k]
         problem.pack_points(z, k, a1, a2)
-        z[sl.l1s] = l1
-        z[sl.l2s] = l2
+        _put_multipliers(z, sl, l1, l2, s)
     return z
 

@@ -56,7 +56,7 @@ from .memory import PairMemory, choose_axis, warm_start as memory_warm_start
 from .params import Compliance, Friction
 from .rows import checks as rk
 from .rows import contact as rc
-from .recovery import _closest_seed, _central_touch_point, _multipliers  # noqa: F401 (tests use _closest_seed)
+from .recovery import _closest_seed, _central_touch_point, _multipliers, _put_multipliers  # noqa: F401 (tests use _closest_seed)
 from .support import SupportFriction, SupportSpec
 
 # ---------------------------------------------------------------------------------------------
@@ -1711,11 +1711,9 @@ class ImplicitContactStepper:
         else:
             memory_warm_start(t.pair_i, t.pair_f, t.body_i, t.body_f, t.body_jac, t.sk_i, t.v0, v_free, mem,
                               t.pair_i[:0], t.pair_f[:0], z, problem._rep[:0], att.cold, state.h, z)
-        for k, (a1, a2, l1, l2) in seeds.items():
-            sl = lay.pairs[k]
+        for k, (a1, a2, l1, l2, s) in seeds.items():
             problem.pack_points(z, k, a1, a2)
-            z[sl.l1] = l1
-            z[sl.l2] = l2
+            _put_multipliers(z, lay.pairs[k], l1, l2, s)
         for sp, ss in zip(problem.supports, lay.supports):
             last = self._last_support.get(sp.key)
             if last is not None and not att.cold and len(last[0]) == ss.y.stop - ss.y.start:
@@ -1750,12 +1748,12 @@ class ImplicitContactStepper:
                                                normal, contact_patch.band(first.piece, second.piece))
             if seed is not None:
                 a1, a2 = seed
-        l1, l2, k1 = _multipliers(spec, P1, P2, a1, a2, normal)
+        l1, l2, k1, s = _multipliers(spec, P1, P2, a1, a2, normal)
         spec.k1 = k1
         spec.normal_l = normal / np.linalg.norm(normal)
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
-        return a1, a2, l1, l2
+        return a1, a2, l1, l2, s
 
     def _contact_report(self, problem, z, k, spec, st) -> ContactReport:
         first, second = spec.objects
@@ -1843,7 +1841,8 @@ class ImplicitContactStepper:
             nat = np.full(problem.layout.n, np.nan)
         pair_name, worst = "", -1.0
         for k, sl in enumerate(problem.layout.pairs):
-            cols = np.concatenate([sl.a1, sl.a2, sl.l1, sl.l2, [sl.p_n], sl.rows_fric]).astype(int)
+            cols = np.concatenate([sl.a1, sl.a2, [sl.s] if sl.s >= 0 else [], sl.l1, sl.l2, [sl.p_n],
+                                   sl.rows_fric]).astype(int)
             r = float(np.nanmax(nat[cols])) if np.any(np.isfinite(nat[cols])) else math.inf
             if r > worst:
                 pair_name, worst = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}", r

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+import implicit_contact as ic
 from comparisons import face_contact as fc
 
 EXACT = 1e-12          # [m] signed distances of boxes by support functions: round-off
@@ -64,3 +65,25 @@ def test_small_campaign_of_flat_boxes_and_prisms_runs_clean():
     assert s["status"] == {"ok": 12}, s["not_ok"]
     assert s["runs_beyond_tolerance"] == 0 and s["worst_distance"] >= -s["tolerance"]
     assert s["runs_energy_over"] == 0, s.get("worst_energy_run")
+
+
+# campaign runs (seed, scenario, kind, h) that raised StepFailure at 0393619 with eqs (28)-(32) in
+# [GI]'s k1 form: "no solution with an active k1" (a box dropped on a welded box, a prism on a
+# box) or 200 iterations (a cylinder on a cylinder's side, a prism on a box)
+ONCE_FAILED_STACKS = [
+    (4214200608, "stack", "box", 0.01594297391169424),
+    (2813723544, "stack", "prism", 0.012659887655620542),
+    (4282984061, "stack", "cylinder", 0.018068892551897694),
+    (818696187, "stack", "prism", 0.009675509228446304),
+]
+
+
+@pytest.mark.parametrize("config", ONCE_FAILED_STACKS, ids=lambda c: f"{c[2]}-{c[0]}")
+def test_bodies_dropped_onto_bodies_land_without_failing(config):
+    """Two intersections in contact (rows/contact.py's cone form, eqs 28n-32n): bodies dropped
+    onto a box, a prism and a cylinder step to the end of their run, and coal finds no pair
+    penetrating beyond the contact tolerance after any step."""
+    rec = fc.run(fc.Config(*config, budget=120.0))
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"]
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance

@@ -12,6 +12,7 @@ from implicit_contact.params import Compliance, Friction
 H = 0.01
 EPS_FD = 1e-6            # central-difference step
 ATOL_FD = 5e-6           # |J - J_fd|: truncation O(eps^2 |F'''|) + round-off O(1e-16 |F| / eps) on rows / h
+ROUND_SCALED = 1e-13     # round-off of a position-level row of lengths ~0.1 m, scaled by 1/h (h = 0.01)
 
 
 CASES = [
@@ -25,6 +26,15 @@ CASES = [
      Friction(0.3, 1.0, 0.8, 0.2)),
     (3, ("free", "free"), shp.Sphere(0.4), shp.Intersection.box([0.3, 0.2, 0.1]), False, Friction(0.3, 1.0, 1.0, 0.0)),
     (3, ("free", "fixed"), shp.Ellipsoid([0.3, 0.2, 0.1]), shp.Sphere(2.0), False, Friction(0.0)),
+    # body 1 an intersection: the cone form of eqs (28)-(32) (rows/contact.py, 28n-32n)
+    (3, ("free", "free"), shp.Intersection.box([0.3, 0.2, 0.1]), shp.Intersection.box([0.2, 0.2, 0.4]), False,
+     Friction(0.3, 1.0, 0.8, 0.2)),
+    (3, ("free", "fixed"), shp.Intersection.box([0.3, 0.2, 0.1]), shp.HalfSpace([0, 0, 1], 0.0), True,
+     Friction(0.5)),
+    (2, ("planar", "planar"), shp.Intersection.rectangle([0.5, 0.3]), shp.Intersection.rectangle([0.2, 0.6]), False,
+     Friction(0.4)),
+    (3, ("free", "free"), shp.Intersection.box([0.3, 0.2, 0.1]), shp.Ellipsoid([0.2, 0.3, 0.4]), False,
+     Friction(0.0)),
 ]
 
 
@@ -49,6 +59,40 @@ def test_layout_builds_only_the_rows_the_pair_needs():
     assert n3(Friction(0.2, 1, 1, 0.3)) == 6 + 3 + 2 + 2 + 1 + 2 + 1 + 1
     assert n3(Friction(0.2, 1, 1, 0.0)) == 6 + 3 + 2 + 2 + 1 + 2 + 1
     assert n3(Friction(0.0)) == 6 + 3 + 2 + 2 + 1
+
+
+def test_cone_form_layout_and_an_exact_stack():
+    """Body 1 an intersection: one more unknown, s, than [GI]'s k1 form (eqs 28n-32n), and a cube
+    resting exactly on a box face to face solves every row of the pair: a1 = a2 on both faces,
+    l = 1 on the box's top face and on the cube's bottom face, s = 0 (touching)."""
+    box, cube = shp.Intersection.box([0.2, 0.2, 0.05]), shp.Intersection.box([0.1, 0.1, 0.1])    # half extents
+    o1, o2 = fm.ContactObject(0, tuple(box.functions), False), fm.ContactObject(1, tuple(cube.functions), False)
+    spec = fm.PairSpec("k", o1, o2, 3, Friction(0.0), False, 0, np.eye(3)[0])
+    assert spec.cone_form
+    layout = fm.build_layout([6, 6], [spec])
+    sl = layout.pairs[0]
+    assert layout.n == 12 + 3 + 3 + 1 + 6 + 6 + 1         # v, a1, a2, s, l1, l2, p_n
+    assert layout.lower[sl.s] == -np.inf and layout.upper[sl.s] == np.inf
+    h = 0.01
+    rest = np.zeros(6)
+    bodies = [fm.BodyKinematics(fm.FREE, 3, np.eye(3), np.zeros(3), np.zeros(6), h, np.arange(0, 6), 1.0),
+              fm.BodyKinematics(fm.FREE, 3, np.eye(3), np.array([0.05, -0.02, 0.15]), np.zeros(6), h,
+                                np.arange(6, 12), 1.0)]
+    blocks = [fm.SkeletonBlock(np.eye(6), rest, rest, b) for b in range(2)]
+    problem = fm.StepProblem(h, blocks, bodies, [spec], layout)
+    z = np.zeros(layout.n)
+    point = np.array([0.03, 0.01, 0.05])                  # on both faces, inside the overlap
+    problem.pack_points(z, 0, point, point)
+    f1 = [f.value(point) for f in box.functions]
+    f2 = [f.value(point - bodies[1].p0) for f in cube.functions]
+    z[sl.l1s] = [1.0 if abs(v) < 1e-15 else 0.0 for v in f1]
+    z[sl.l2s] = [1.0 if abs(v) < 1e-15 else 0.0 for v in f2]
+    assert sum(z[sl.l1s]) == 1.0 and sum(z[sl.l2s]) == 1.0
+    F = problem.fun(z)
+    natural = np.abs(z - np.clip(z - F, layout.lower, layout.upper))   # 0 at an MCP solution
+    np.testing.assert_allclose(natural, 0.0, atol=ROUND_SCALED)
+    z[sl.s] = 1e-3                                         # a separated s with touching points
+    assert np.max(np.abs(problem.fun(z)[sl.a1])) > 1e-4
 
 
 COMPLIANT_CASES = [

@@ -8,7 +8,8 @@ at z in R, p), ``solution_checks`` sets flags[k] to a sum of:
     THROUGH   a fixed half-space as body 2 with its free multiplier l2 <= 0: the far-side root
               of eqs (15)-(19) of a body wholly through it (recovery._passed_through)
     STALE     body 1 an intersection whose k1 function is inactive at a1, f_k1(a1) < -tol
-              ([GI] Prop. 4.3; recovery.flip_intersections, recovery.adopt_k1)
+              ([GI] Prop. 4.3; recovery.flip_intersections, recovery.adopt_k1); never for a
+              cone-form pair (rows/contact.py), which has no k1
     GAP       p_n not finite, or the gap below -tol (a penetrating solution)
     CONE      friction rows with |(p_t / e_t, p_o / e_o)| > (mu p_n + slack) (1 + 1e-8),
               slack = 1e3 solver tol s_p (a friction impulse outside its cone)
@@ -52,7 +53,7 @@ def solution_checks(pair_i, pair_f, fpar, z, rep, R, p, tol, solver_tol, touch, 
             f |= ON
         if pi[rc.P_RED2] != 0 and pi[rc.P_M2] > 0 and z[c0 + pi[rc.P_L2]] <= 0.0:
             f |= THROUGH
-        if pi[rc.P_M1] > 1:
+        if pi[rc.P_M1] > 1 and pi[rc.P_S] < 0:
             b1 = pi[rc.P_B1]
             for q in range(3):
                 a1[q] = rep[k, rc.R_A1 + q]

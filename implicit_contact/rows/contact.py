@@ -8,6 +8,7 @@ Paper symbols in ASCII (Drake SAP style)::
     p_n       p_n         normal impulse, 0 <= p_n  _|_  max_i f_i(a2) >= 0            (19), (32)
     p_t,p_o   p_t         friction impulses along the tangents t, o                    (7), (21)
     p_r       p_r         torsional moment impulse about the normal                    (7), (21)
+    -         s           scaled distance of a cone-form pair, 0 <= p_n _|_ s >= 0     (28n), (32n)
     sigma     sigma       slip-speed multiplier of the friction ellipsoid             (7), (22)
     dbar      dbar        algebraic offset of the compliant layer                      (34)
     delta_n   dn          normal deflection of the layer                               (35)
@@ -26,6 +27,27 @@ N2 = sum_j l_j grad g_j(a2):
     e_o^2 mu p_n (o . v_rel) + p_o sigma = 0                     3D only
     e_r   mu p_n (n . w_rel) + p~_r sigma = 0, p_r = e_r p~_r    3D, if e_r > 0
     0 <= sigma  _|_  mu^2 p_n^2 - p_t^2/e_t^2 - p_o^2/e_o^2 - p~_r^2 >= 0        (22)
+
+The cone form (pair column P_S >= 0: body 1 an intersection of a rigid pair, PairSpec.cone_form).
+[GI] divides eqs (24)-(25) by the multiplier of one active function k1 of body 1; Prop. 4.3 then
+holds only while k1 stays active at a1, which between two intersections is not known within a
+step (Sec. 7): with k1 inactive, N1 is not in body 1's normal cone and the rows admit touching
+points of interpenetrating bodies (measured: 32 of 200 stacked bodies raised StepFailure, 7
+penetrated). Dividing instead by the sum of body 1's multipliers, s = sum_i hat-l_i, leaves
+every l_i complementary and needs no k1:
+
+    N1 = sum_i l_i grad f_i(a1)           (all i)
+    a1 - a2 + s N1 = 0                     (28n)     d rows
+    N1 + N2 = 0                            (29)      d rows
+    sum_i l_i - 1 = 0                      (29n)     1 row, paired with the free unknown s
+    (30), (31) for every l_i, l_j
+    0 <= p_n  _|_  s >= 0                  (32n)
+
+A solution with s > 0 is the pair of closest points of separated bodies (the KKT conditions
+(24)-(27), hat-l = s l). With s = 0, a1 = a2 lies on both boundaries and N1, a non-zero
+combination of body 1's active gradients, lies in C(F, a1) and in -C(G, a2): a common
+supporting plane, so the bodies touch and do not overlap (the proof of Prop. 4.3 with N1 in
+place of grad f_k1 + sum l_i grad f_i). The gap row is s: smooth, no max over functions.
 
 and, for a quasi-rigid pair ([GI] Sec. 5; dbar_c = dbar on the compliant side c, 0 elsewhere),
 
@@ -81,8 +103,8 @@ from .. import shape_kernels as sk
 # pair_i columns
 (P_DIM, P_B1, P_B2, P_F1, P_M1, P_F2, P_M2, P_RED1, P_RED2, P_K1, P_FR, P_TORS, P_COMP, P_SIDE,
  P_C0, P_NBLK, P_A1, P_NA1, P_A2, P_NA2, P_L1, P_L2, P_PN, P_PT, P_PR, P_SIG, P_DBAR, P_DN, P_PNR,
- P_KV1, P_KV2, P_SPLIT) = range(32)
-NPI = 32
+ P_KV1, P_KV2, P_SPLIT, P_S) = range(33)
+NPI = 33
 # pair_f columns
 (Q_SP, Q_MU, Q_ET, Q_EO, Q_ER) = range(5)
 Q_AXIS = 5        # 3
@@ -298,6 +320,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     f1o, f2o = pi[P_F1], pi[P_F2]
     red1, red2 = pi[P_RED1] != 0, pi[P_RED2] != 0
     k1 = pi[P_K1]
+    cs = pi[P_S]
+    cone_form = cs >= 0                           # body 1's normal normalised by sum l = 1 (29n)
     fr, tors = pi[P_FR] != 0, pi[P_TORS] != 0
     comp, side = pi[P_COMP], pi[P_SIDE]
     c0, nblk = pi[P_C0], pi[P_NBLK]
@@ -376,7 +400,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     c1, at = _take(ws, at, m1)
     for i in range(m1):
         c1[i] = l1[i]
-    c1[k1] = 1.0                                  # N1 = sum_i c_i G_i with c_k1 = 1
+    if not cone_form:
+        c1[k1] = 1.0                              # N1 = sum_i c_i G_i with c_k1 = 1
     N1, at = _take(ws, at, 3)
     N2, at = _take(ws, at, 3)
     for i in range(m1):
@@ -386,6 +411,8 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         for q in range(3):
             N2[q] += l2[j] * G2[j, q]
     lk = l1[k1]
+    if cone_form:
+        lk = z[c0 + cs]
     own = ob                                      # the pair's first row in FL / JL
     row = 0
     for q in range(d):
@@ -393,6 +420,12 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         row += 1
     for q in range(d):
         FL[own + row] = N1[q] + N2[q]                                  # (16) / (29)
+        row += 1
+    if cone_form:
+        acc = -1.0
+        for i in range(m1):
+            acc += l1[i]
+        FL[own + row] = acc                                            # (29n): sum_i l_i = 1
         row += 1
     if not red1:
         for i in range(m1):
@@ -407,7 +440,7 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
         if f12[i] > f12[ia]:
             ia = i                                                     # the first maximiser
     gap = f12[ia] + off1
-    FL[own + row] = gap                                                # (19) / (32) / (36)
+    FL[own + row] = lk if cone_form else gap                           # (19) / (32) / (36) / (32n)
     row += 1
 
     # -- normal, tangents, impulse
@@ -591,7 +624,7 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     dN2 = dN2_flat.reshape((3, nv))
     for i in range(m1):
         _add_dG(dN1, c1[i], G1[i], H1[i], r11, A1v, TW1, S, Sr)
-        if i != k1:
+        if i != k1 or cone_form:
             for q in range(3):
                 dN1[q, cl1 + i] += G1[i, q]
     for j in range(m2):
@@ -602,13 +635,17 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
     for q in range(d):                                                 # (15)
         D[row, A1v + q] += 1.0
         D[row, A2v + q] -= 1.0
-        D[row, cl1 + k1] += N1[q]
+        D[row, (cs if cone_form else cl1 + k1)] += N1[q]
         for c in range(nv):
             D[row, c] += lk * dN1[q, c]
         row += 1
     for q in range(d):                                                 # (16)
         for c in range(nv):
             D[row, c] += dN1[q, c] + dN2[q, c]
+        row += 1
+    if cone_form:                                                      # (29n)
+        for i in range(m1):
+            D[row, cl1 + i] += 1.0
         row += 1
     if not red1:                                                       # (17)
         for i in range(m1):
@@ -622,9 +659,12 @@ def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, 
             if comp != RIGID and side == 2:
                 D[row, cdbar] -= 1.0
             row += 1
-    _add_df(D, row, 1.0, G12[ia], r12, A2v, TW1, tmp)                 # (19)
-    if comp != RIGID and side == 1:
-        D[row, cdbar] += 1.0
+    if cone_form:                                                      # (32n)
+        D[row, cs] += 1.0
+    else:                                                              # (19)
+        _add_df(D, row, 1.0, G12[ia], r12, A2v, TW1, tmp)
+        if comp != RIGID and side == 1:
+            D[row, cdbar] += 1.0
     row += 1
     # dn = Pn dN1, Pn = (I - n n^T) / |N1|
     dn_flat, at = _take(ws, at, 3 * nv)
