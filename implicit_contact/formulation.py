@@ -551,13 +551,12 @@ class StepProblem:
 
     def checks(self, z, tol, solver_tol, touch) -> np.ndarray:
         """Per pair the flags of rows/checks.solution_checks at z (friction rows to switch, a body
-        through a half-space, a stale k1, a penetrating gap, friction outside its cone)."""
+        through a half-space, a penetrating gap, friction outside its cone)."""
         self._evaluated_at(z)
         flags = np.zeros(len(self.specs), np.int64)
-        R, p = self._work[0], self._work[1]
         t = self.tables
-        rk.solution_checks(t.pair_i, t.pair_f, t.fpar, np.ascontiguousarray(z, dtype=float), self._rep, R, p,
-                           tol, solver_tol, touch, flags)
+        rk.solution_checks(t.pair_i, t.pair_f, np.ascontiguousarray(z, dtype=float), self._rep, tol, solver_tol,
+                           touch, flags)
         return flags
 
     def support_wrench(self, z, s) -> np.ndarray:

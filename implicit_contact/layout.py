@@ -43,7 +43,7 @@ class PairSpec:
     dim: int
     friction: Friction
     with_friction: bool
-    k1: int = 0
+    k1: int = 0                # eq (28)'s k1 of a pair not in the cone form: 0, its one function
     tangent_axis: np.ndarray | None = None
     impulse_scale: float = 1.0
     objects: tuple = ()        # the stepper's own records of the two pieces, for reports
@@ -58,9 +58,9 @@ class PairSpec:
     @property
     def cone_form(self) -> bool:
         """Whether body 1's normal is normalised by its multipliers' sum (rows/contact.py, eqs
-        28n-32n): body 1 an intersection (not a fixed half-space) of a rigid pair. Then no active
-        function k1 is chosen, and the pair has one more unknown, s (its scaled distance)."""
-        return len(self.obj1.functions) > 1 and not self.obj1.fixed_halfspace and self.compliance is None
+        28n-32n): body 1 an intersection. Then no active function k1 is chosen, and the pair has
+        one more unknown, s (its scaled distance); else body 1 is one function (k1 = 0)."""
+        return len(self.obj1.functions) > 1
 
 
 @dataclass

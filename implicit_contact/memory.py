@@ -3,7 +3,7 @@ r"""What a step remembers of the last one: its pairs' solution, and the warm sta
 ``PairMemory`` keeps the last committed step's problem tables, its solution z and its pairs'
 reports (closest points, normals; rows/contact.py), and answers per pair key the quantities the
 stepper's decisions read (``memory.get(key)["p_n"]`` and so on: last normal impulse, points,
-multipliers, friction, k1, tangent axis, layer deflection, and the Euclidean distance of a
+multipliers, friction, tangent axis, layer deflection, and the Euclidean distance of a
 separated pair). Nothing is copied per pair: the records are read from the arrays on demand.
 
 ``warm_start`` (compiled) makes the next step's start from it, pair by pair, for every pair the
@@ -89,7 +89,7 @@ class PairMemory:
 
 
 class _Record:
-    """One pair of a PairMemory, read by name: a1, a2, normal, l1, l2, p_n, p_t, p_r, sigma, k1,
+    """One pair of a PairMemory, read by name: a1, a2, normal, l1, l2, p_n, p_t, p_r, sigma,
     axis, dbar, deflection, deflection_prev, p_nr, k, distance (physical units)."""
 
     __slots__ = ("m", "k")
@@ -120,8 +120,6 @@ class _Record:
             return s_p * pf[rc.Q_ER] * z[c0 + pi[rc.P_PR]] if pi[rc.P_TORS] else 0.0
         if name == "sigma":
             return float(z[c0 + pi[rc.P_SIG]]) if pi[rc.P_FR] else 0.0
-        if name == "k1":
-            return int(pi[rc.P_K1])
         if name == "axis":
             return pf[rc.Q_AXIS:rc.Q_AXIS + 3].copy() if d == 3 else None
         if name == "dbar":
@@ -182,39 +180,14 @@ def _tangents(n, e, t, o):
 
 @kernel
 def _carry_multipliers(pi, oi, z_old, c0, o0, z0):
-    """A pair's multipliers from its memory (same functions, same sides), rescaled where the
-    memory's pair and the new one normalise body 1's normal differently (rows/contact.py: c_k1 = 1
-    with l_k1 the scaled distance, or the cone form's sum l = 1 with s)."""
-    m1, m2 = pi[rc.P_M1], pi[rc.P_M2]
-    scale, s = 1.0, 0.0
-    new_cone, old_cone = pi[rc.P_S] >= 0, oi[rc.P_S] >= 0
-    for i in range(m1):
+    """A pair's multipliers (and a cone-form pair's s) from its memory: the same pair, with the
+    same functions on the same sides."""
+    for i in range(pi[rc.P_M1]):
         z0[c0 + pi[rc.P_L1] + i] = z_old[o0 + oi[rc.P_L1] + i]
-    if new_cone and old_cone:
-        s = z_old[o0 + oi[rc.P_S]]
-    elif new_cone:                       # c = l with c_k1 = 1: l_i = c_i / sum c, s = l_k1 sum c
-        k1 = oi[rc.P_K1]
-        lk = z0[c0 + pi[rc.P_L1] + k1]
-        z0[c0 + pi[rc.P_L1] + k1] = 1.0
-        total = 0.0
-        for i in range(m1):
-            total += z0[c0 + pi[rc.P_L1] + i]
-        scale = 1.0 / total
-        for i in range(m1):
-            z0[c0 + pi[rc.P_L1] + i] *= scale
-        s = lk * total
-    elif old_cone:                       # the inverse, about the new pair's k1
-        k1 = pi[rc.P_K1]
-        lk = z0[c0 + pi[rc.P_L1] + k1]
-        if lk > 0.0:
-            scale = 1.0 / lk
-            for i in range(m1):
-                z0[c0 + pi[rc.P_L1] + i] *= scale
-            z0[c0 + pi[rc.P_L1] + k1] = z_old[o0 + oi[rc.P_S]] * lk
-    for i in range(m2):
-        z0[c0 + pi[rc.P_L2] + i] = scale * z_old[o0 + oi[rc.P_L2] + i]
-    if new_cone:
-        z0[c0 + pi[rc.P_S]] = s
+    for i in range(pi[rc.P_M2]):
+        z0[c0 + pi[rc.P_L2] + i] = z_old[o0 + oi[rc.P_L2] + i]
+    if pi[rc.P_S] >= 0:
+        z0[c0 + pi[rc.P_S]] = z_old[o0 + oi[rc.P_S]]
 
 
 @kernel

@@ -12,11 +12,6 @@ recovery objects to is the step's answer; a failed solve that none can restart i
                                       with rows whose gap opened (sigma undetermined)   tests/test_spheres.py
     passed_through       converged    a body wholly through a fixed half-space: the     tests/test_rigid3d.py::test_fast_sphere_
                                       far-side root of eqs (15)-(19) (100 m/s sphere)   does_not_tunnel_through_a_half_space
-    flip_intersections   converged    two intersections, k1 inactive at a1: a box        tests/test_rigid3d.py::test_body_sliding_
-                                      tipping over a table's edge (body 1 must be the   off_a_table_edge_tips_over_it, test_hexagon_
-                                      side touching with a face)                        tips_off_a_wedge_and_lands_on_a_face_2d
-    adopt_k1             converged    k1 inactive at a1 after the flip (or one          tests/test_rigid3d.py (tipping tests)
-                                      intersection): k1 from the static closest points
     face_landing         failed       faces landing on faces: from p_n = 0 the moment   tests/test_face_contact.py::test_box_
                                       rows do not see the contact point (a box resting  started_down_flat_with_spin_lands_in_
                                       flat, started down at 5 m/s with spin)            one_step
@@ -55,10 +50,10 @@ TOUCH = 1e-9        # scaled normal impulse (units of h m g) above which a pair 
 class Attempt:
     """The solve loop's state within one step (ImplicitContactStepper._solve_step).
 
-    How the next solve starts, in this precedence: ``flip`` (problem, x, seeds) after a swap of
-    bodies 1 and 2; ``reseeded`` (a start vector) from static closest points; the warm start
-    from the last step if ``previous`` is None (``cold``: without its impulses); else a transfer
-    of ``previous`` (problem, x) to the new layout, sliding restarts for ``sliding``."""
+    How the next solve starts, in this precedence: ``reseeded`` (a start vector) from static
+    closest points; the warm start from the last step if ``previous`` is None (``cold``: without
+    its impulses); else a transfer of ``previous`` (problem, x) to the new layout, sliding
+    restarts for ``sliding``."""
     specs: list
     pairs: list
     tol: float
@@ -71,11 +66,9 @@ class Attempt:
     added: list = field(default_factory=list)      # pairs given friction rows by the last re-solve
     restarts: int = 0                              # sliding restarts from the current previous
     reseeded: np.ndarray | None = None
-    flip: tuple | None = None
     cold: bool = False
     cold_tried: bool = False
-    k1_switches: int = 0
-    flipped_once: set = field(default_factory=set)
+    through_reseeds: int = 0                       # passed_through's reseeds
     index: int = 0                                 # solves so far
     z0: np.ndarray | None = None
     joints: list = field(default_factory=list)     # per involved skeleton its JointRows or None
@@ -119,57 +112,11 @@ def passed_through(stepper, att: Attempt, problem, result):
     through = _passed_through(problem, result.x, att.tol)
     if not through:
         return None
-    if att.k1_switches < 2:
-        att.k1_switches += 1
+    if att.through_reseeds < 2:
+        att.through_reseeds += 1
         att.reseeded = _reseed(problem, result.x, att.tol)
         return RETRY
     return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"pairs {through} pass through a half-space")
-
-
-def flip_intersections(stepper, att: Attempt, problem, result):
-    """[GI] Prop. 4.3 needs k1 active on body 1; with k1 inactive eqs (28)-(32) admit
-    interpenetrating "touching" points (a box sliding off a table's edge slides down its side
-    face). Between two intersections the side that touches with a face becomes body 1
-    (ImplicitContactStepper._orient_intersections, once per pair and step), seeded from static
-    closest points at the iterate."""
-    if not result.success:
-        return None
-    x = result.x
-    stale = _inactive_k1(problem, x, att.tol)
-    flip = [k for k in stale if k not in att.flipped_once and len(att.specs[k].obj1.functions) > 1
-            and len(att.specs[k].obj2.functions) > 1]
-    if not flip:
-        return None
-    seeds = {}
-    for k in flip:
-        att.flipped_once.add(k)
-        old = att.specs[k]
-        stepper._orient_intersections(*old.objects, flip=True)
-        new = stepper._pair_spec(*att.pairs[k], att.h, att.body_pos, att.states)
-        new.with_friction, new.tangent_axis = old.with_friction, old.tangent_axis
-        new.friction, new.patch = old.friction, old.patch       # (the patch is the pair's, either way)
-        if old.normal_l is not None:
-            new.normal_l = old.normal_l if new.obj1.body == old.obj1.body else -old.normal_l
-        seeds[k] = _flip_seed(problem, x, new, att.tol)
-        att.specs[k] = new
-    att.flip = (problem, x, seeds)
-    return RETRY
-
-
-def adopt_k1(stepper, att: Attempt, problem, result):
-    """k1 still inactive at a1 (after the flip, or with one intersection): k1 and the seed from
-    the static closest points at the iterate, twice at most; then a failure (no solution with
-    an active k1, [GI] Sec. 7)."""
-    if not result.success:
-        return None
-    stale = _inactive_k1(problem, result.x, att.tol)
-    if not stale:
-        return None
-    if att.k1_switches < 2:
-        att.k1_switches += 1
-        att.reseeded = _reseed(problem, result.x, att.tol, adopt_k1=stale)
-        return RETRY
-    return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"no solution with an active k1 for pairs {stale}")
 
 
 def face_landing(stepper, att: Attempt, problem, result):
@@ -200,9 +147,7 @@ def face_landing(stepper, att: Attempt, problem, result):
             continue
         spec, sl = problem.specs[k], problem.layout.pairs[k]
         poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
-        l1, l2, k1, s = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
-        if k1 != spec.k1 and not spec.cone_form:
-            continue             # the layout's k1 is fixed for this problem
+        l1, l2, s = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
         problem.pack_points(z, k, found.x_end, found.x_end)
         s_p = spec.impulse_scale
         _put_multipliers(z, sl, l1, l2, s)
@@ -267,60 +212,42 @@ def reseed(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, flip_intersections, adopt_k1, face_landing, restart_sliding, cold_start,
-              reseed)
+RECOVERIES = (friction_rows, passed_through, face_landing, restart_sliding, cold_start, reseed)
 
 
 # ---------------------------------------------------------------------------------------------
 # seeds and transfers
 # ---------------------------------------------------------------------------------------------
 def _multipliers(spec, P1, P2, a1, a2, normal):
-    """KKT multipliers of eqs (15)-(16)/(28)-(29) consistent with given closest points:
-    (l1, l2, k1, s), s the scaled distance of a cone-form pair (rows/contact.py, eqs 28n-32n),
-    else None.
+    """KKT multipliers of eqs (15)-(16)/(28n)-(29n) consistent with given closest points:
+    (l1, l2, s), s the scaled distance of a cone-form pair (rows/contact.py), else None.
 
-    hat-l (eqs 24-25) by non-negative least squares on the gradients, then the paper's scaling
-    l_k1 = hat-l_k1, l_i = hat-l_i / hat-l_k1, or, in the cone form, l_i = hat-l_i / sum hat-l and
-    s = sum hat-l (k1 = the largest, for reports only); touching points use the normal instead of
-    a1 - a2."""
+    hat-l (eqs 24-25) by non-negative least squares on the gradients, then scaled: body 1 one
+    function, the paper's l1 = hat-l (eq 15); an intersection, the cone form's l_i = hat-l_i /
+    sum hat-l and s = sum hat-l. Touching points use the normal instead of a2 - a1."""
     _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
     _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
     d = a2 - a1
-    m1 = len(G1)
+    touching = np.linalg.norm(d) <= 1e-12
     if spec.cone_form:
-        touching = np.linalg.norm(d) <= 1e-12
         lam, _ = nnls(G1.T, normal if touching else d)
-        k1 = int(np.argmax(lam))
         total = float(lam.sum())
         if total <= 0.0:         # no cone combination: the function nearest to active
             f1, _ = fm.eval_functions(spec.obj1.functions, P1, a1)
-            lam, total = np.zeros(m1), 1.0
+            lam, total = np.zeros(len(G1)), 1.0
             lam[int(np.argmax(f1))] = 1.0
         l1 = lam / total
-        l2, _ = nnls(G2.T, -(l1 @ G1))
-        if spec.obj2.fixed_halfspace:
-            l2 = np.array([float(np.linalg.norm(l1 @ G1) / np.linalg.norm(G2[0]))])
-        return l1, l2, k1, 0.0 if touching else total
-    if np.linalg.norm(d) > 1e-12:
-        lam, _ = nnls(G1.T, d)
-        k1 = int(np.argmax(lam)) if m1 > 1 else 0
-        lk = lam[k1]
-        l1 = lam / lk if lk > 0 else np.zeros(m1)
-        l1[k1] = lk
-    else:
-        lam, _ = nnls(G1.T, normal)
-        k1 = int(np.argmax(lam)) if m1 > 1 else 0
-        l1 = lam / lam[k1] if lam[k1] > 0 else np.zeros(m1)
-        l1[k1] = 0.0
-    c = l1.copy()
-    c[k1] = 1.0
-    N1 = c @ G1
+        s = 0.0 if touching else total
+    else:                        # one function: N1 = grad f(a1), l1 = hat-l (0 when touching)
+        l1 = np.zeros(1) if touching else nnls(G1.T, d)[0]
+        s = None
+    N1 = G1[0] if s is None else l1 @ G1
     l2, _ = nnls(G2.T, -N1)
     if spec.obj1.fixed_halfspace:
         l1 = np.array([float(np.linalg.norm(d))])
     if spec.obj2.fixed_halfspace:
         l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
-    return l1, l2, k1, None
+    return l1, l2, s
 
 
 def _put_multipliers(z, sl, l1, l2, s):
@@ -332,7 +259,7 @@ def _put_multipliers(z, sl, l1, l2, s):
 
 
 def _static_seed(problem, x, spec, tol, always=False):
-    """(a1, a2, l1, l2, k1, s) of pair ``spec`` from the static closest points at the poses the
+    """(a1, a2, l1, l2, s) of pair ``spec`` from the static closest points at the poses the
     iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
     fixed half-space: its point below the plane); None if the static solve fails, unless always
     (then _closest_seed's fallbacks)."""
@@ -352,28 +279,12 @@ def _static_seed(problem, x, spec, tol, always=False):
     return (a1, a2) + _multipliers(spec, P[0], P[1], a1, a2, normal)
 
 
-def _flip_seed(problem, x, spec, tol):
-    """_static_seed of a pair whose bodies 1 and 2 were just swapped (spec: the new orientation):
-    (a1, a2, l1, l2, s); sets spec.k1 from it."""
-    a1, a2, l1, l2, spec.k1, s = _static_seed(problem, x, spec, tol, always=True)
-    return a1, a2, l1, l2, s
-
-
-def _flip_transfer(old, x, seeds, new) -> np.ndarray:
-    """Warm start after swapping bodies 1 and 2 of the pairs in seeds (k -> _flip_seed): the
-    other unknowns as _transfer; the swapped pairs' points from the seeds and their impulses
-    mapped to the new frame. With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the
-    impulse on the new body 2 is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o,
-    p_r' = p_r; sigma is unchanged."""
-    z = _transfer(old, x, new, skip=seeds)
-    _swap_into(old, x, new, z, seeds)
-    return z
-
-
 def _swap_into(old, x, new, z, seeds):
     """The pairs in seeds (k -> (a1, a2, l1, l2, s) in the new frame) swapped bodies 1 and 2
-    between old and new: their points and multipliers from the seeds, their impulses mapped (see
-    _flip_transfer)."""
+    between old and new: their points and multipliers from the seeds, their impulses mapped.
+    With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the impulse on the new body 2
+    is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o, p_r' = p_r; sigma is
+    unchanged."""
     for k, (a1, a2, l1, l2, s) in seeds.items():
         so, sn = old.layout.pairs[k], new.layout.pairs[k]
         new.pack_points(z, k, a1, a2)
@@ -389,22 +300,23 @@ def _swap_into(old, x, new, z, seeds):
             z[sn.sigma] = x[so.sigma]
 
 
-def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
+def _transfer(old, x, new, sliding=()) -> np.ndarray:
     """Warm start of a re-solve whose pairs gained or lost friction rows: copy what both layouts
     share. New friction rows start at zero impulse and zero slip multiplier, except for the pairs
     in ``sliding``, which start at the sliding solution that the old solution's slip implies
     (p_f = -mu p_n E^2 v_t / sigma, sigma = |E v_t|). Measured on Example 2: from the wrong one of
     the two starts the FB merit crawls along a non-solution valley (a sliding contact held at
     sigma = 0 with its friction outside the cone), from the right one Newton converges at once.
-    A pair whose bodies were swapped since old (flip_intersections, after the solve old was
-    kept for) gets old's points, multipliers and impulses in the swapped frame (_swap_into);
-    measured: example-robot-data's solo.urdf, a 46-plane foot hull against the ground box, raised
-    a shape mismatch here when a friction re-solve followed a flip."""
+    A pair whose bodies are in the other order in new gets old's points, multipliers and
+    impulses in the swapped frame (_swap_into); measured: example-robot-data's solo.urdf, a
+    46-plane foot hull against the ground box, raised a shape mismatch here when a friction
+    re-solve followed a swap (the recovery that swapped the bodies of two intersections, for
+    [GI]'s k1, is gone with the cone form; the transfer keeps the case)."""
     z = np.zeros(new.layout.n)
     swapped = {}
     for k in range(len(new.specs)):
         ko, kn = old.keys[k], new.keys[k]
-        if k not in skip and ko != kn and ko == kn[::-1]:
+        if ko != kn and ko == kn[::-1]:
             st = old.unpack_pair(x, k)
             swapped[k] = (st.a2, st.a1, st.l2, st.l1, None)
     for a, b in zip(old.layout.v_index, new.layout.v_index):
@@ -414,7 +326,7 @@ def _transfer(old, x, new, sliding=(), skip=()) -> np.ndarray:
     for a, b in zip(old.layout.joint_index, new.layout.joint_index):
         z[b] = x[a]
     for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
-        if k in skip or k in swapped:
+        if k in swapped:
             continue
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
@@ -573,13 +485,6 @@ def _passed_through(problem, x, tol) -> list:
     return [k for k in range(len(flags)) if flags[k] & rk.THROUGH]
 
 
-def _inactive_k1(problem, x, tol) -> list:
-    """Pairs whose body 1 is an intersection and whose k1 function is not active at a1 (rows/
-    checks.py's STALE)."""
-    flags = problem.checks(x, tol, 0.0, TOUCH)
-    return [k for k in range(len(flags)) if flags[k] & rk.STALE]
-
-
 def _below_plane_seed(spec, P):
     """Seed (a1, a2, normal) of a body overlapping a fixed half-space: its support point along
     -n (its deepest point below the plane) and that point's projection on the plane; None when
@@ -607,7 +512,7 @@ def _below_plane_seed(spec, P):
     return None
 
 
-def _reseed(problem, x, tol, adopt_k1=()):
+def _reseed(problem, x, tol):
     """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
     replace every pair's closest points and multipliers by the static solution (closest.py) at
     the poses those velocities imply.
@@ -620,11 +525,7 @@ def _reseed(problem, x, tol, adopt_k1=()):
         seed = _static_seed(problem, x, spec, tol)
         if seed is None:
             continue
-        a1, a2, l1, l2, k1, s = seed
-        if k in adopt_k1:
-            spec.k1 = k1         # the caller rebuilds the problem with it
-        elif k1 != spec.k1 and not spec.cone_form:
-            continue             # the layout's k1 is fixed for this problem; keep the old seed
+        a1, a2, l1, l2, s = seed
         sl = problem.layout.pairs[k]
         problem.pack_points(z, k, a1, a2)
         _put_multipliers(z, sl, l1, l2, s)

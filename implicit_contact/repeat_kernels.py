@@ -62,12 +62,12 @@ def prepare(body_i, body_f, body_jac, sk_i, sk_M, v0, hforce, pair_i, pair_f, sc
 
 
 @kernel
-def finish(pair_i, pair_f, fpar, sk_i, z, rep, st_R, st_p, tol, solver_tol, touch, flags,
+def finish(pair_i, pair_f, sk_i, z, rep, tol, solver_tol, touch, flags,
            sk_src, src_voff, VF, V_solved, far_pairs, far_gaps, far_left,
            ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff, margins, h, eligible, near_gaps):
     """solution_checks, the solved world velocities, far_after, moved_beyond_margins,
     known_gaps (module docstring)."""
-    if rk.solution_checks(pair_i, pair_f, fpar, z, rep, st_R, st_p, tol, solver_tol, touch, flags) != 0:
+    if rk.solution_checks(pair_i, pair_f, z, rep, tol, solver_tol, touch, flags) != 0:
         return RECOVERY
     for i in range(VF.shape[0]):
         V_solved[i] = VF[i]
@@ -171,7 +171,7 @@ def step(W, T, S, SP, C, MB_src, FB_src, fat_lo, fat_hi, fat_P, mask, kin, mem_i
             fP[j, 0], fP[j, 1] = cand[k, 0], cand[k, 1]
             fg[j] = C.gaps[k]
             j += 1
-    code = finish(T.pair_i, T.pair_f, T.fpar, T.sk_i, x, T.rep, T.st_R, T.st_p, tol, solver_tol, touch, C.flags,
+    code = finish(T.pair_i, T.pair_f, T.sk_i, x, T.rep, tol, solver_tol, touch, C.flags,
                   C.sk_src, W.sk_voff, W.VF, W.V_solved, fP[:nfar], fg[:nfar], C.left[:nfar], W.ob_body, W.ob_radius,
                   W.ob_bounded, W.bd_kind, W.bd_sk, W.sk_voff, W.margins, h, C.eligible, C.near_gaps)
     if code != OK:

@@ -1345,9 +1345,7 @@ class ImplicitContactStepper:
         problem = result = None
         for att.index in range(recovery.MAX_SOLVES):
             problem = self._problem(state, att)
-            if att.flip is not None:
-                z0, att.flip = recovery._flip_transfer(*att.flip, problem), None
-            elif att.reseeded is not None:
+            if att.reseeded is not None:
                 z0, att.reseeded = att.reseeded, None
             elif att.previous is None:
                 z0 = self._warm_start(problem, att, state)
@@ -1588,8 +1586,9 @@ class ImplicitContactStepper:
     def _pair_spec(self, i, j, h, body_pos, states):
         scene = self.scene
         oi, oj = self._objects[i], self._objects[j]
-        # body 1 must be a single function when the other side is an intersection ([GI] Sec. 4.3);
-        # a fixed half-space (the ground) is body 2, as in the paper's Example 1.
+        # body 1 is a single function when the other side is an intersection ([GI] Sec. 4.3; two
+        # intersections take the cone form, rows/contact.py); a fixed half-space (the ground) is
+        # body 2, as in the paper's Example 1.
         single_i, single_j = len(oi.funcs) == 1, len(oj.funcs) == 1
         if single_i != single_j:
             first, second = (oi, oj) if single_i else (oj, oi)
@@ -1616,7 +1615,6 @@ class ImplicitContactStepper:
             # stays far from it, else take a new one (the warm start rotates the friction along)
             axis = np.empty(3)
             choose_axis(last["axis"], last["normal"], _AXIS_LIMIT, axis)
-        k1 = last["k1"] if last is not None else 0
         compliance = self._pair_compliance.get(frozenset((b1.index, b2.index)),
                                                Compliance.series(first.compliance, second.compliance))
         # the deformed layer sits on the compliant body (body 2 if both or only a pair setting);
@@ -1628,7 +1626,7 @@ class ImplicitContactStepper:
         o1 = fm.ContactObject(body_pos[first.body], first.funcs, red1, first.label)
         o2 = fm.ContactObject(body_pos[second.body], second.funcs, red2, second.label)
         delta_prev = last["deflection"] if last is not None else 0.0
-        spec = fm.PairSpec(key, o1, o2, dim, friction, with_friction, k1, axis, s_p, (first, second),
+        spec = fm.PairSpec(key, o1, o2, dim, friction, with_friction, 0, axis, s_p, (first, second),
                            compliance, side, delta_prev)
         if last is not None:
             spec.normal_l = last["normal"]
@@ -1663,21 +1661,18 @@ class ImplicitContactStepper:
                                           n, contact_patch.band(first.piece, second.piece),
                                           *contact_patch.workspace(first.face, second.face))
 
-    def _orient_intersections(self, oi, oj, flip=False):
-        """Which of two intersections is body 1 ([GI] eqs 28-32): the side whose closest point
-        lies on one face (one active function, the k1 of eq 28), the other side taking any number
-        of active functions through its bounded multipliers. A box tipping over a table's edge
-        touches the table's edge with its bottom face: the box must be body 1 (with the table as
-        body 1, k1 = the table's top face goes inactive at its edge and eqs 28-32 then admit
-        interpenetrating points). Chosen from the static closest points when the pair appears,
-        kept while it lasts; flip=True swaps it (the stepper's answer to a stale k1)."""
+    def _orient_intersections(self, oi, oj):
+        """Which of two intersections is body 1: the side whose closest point lies on one face (one
+        active function), the other side taking any number of active functions. The cone form of
+        eqs (28)-(32) (rows/contact.py) is valid in either order; this one makes body 1's normal a
+        single face's while a box rests on a table or tips over its edge (the orientation [GI]'s
+        k1 form needed, kept for its reports). Chosen from the static closest points when the
+        pair appears, kept while it lasts."""
         self._checkpoint()
         pair = frozenset((oi.key, oj.key))
         known = self._orientation.get(pair)
         alive = (oi.key, oj.key) in self._last or (oj.key, oi.key) in self._last
-        if flip and known is not None:
-            known = oj.key if known == oi.key else oi.key
-        elif known is None or not alive:
+        if known is None or not alive:
             from .closest import closest_points
             pi, pj = (_pose_dim(adapter.body_pose(self.scene.bodies[o.body]), o.piece.dim) for o in (oi, oj))
             res = closest_points(oi.piece, pi, oj.piece, pj)
@@ -1726,9 +1721,9 @@ class ImplicitContactStepper:
         return z
 
     def _seed_pair(self, problem, spec, state):
-        """A new pair's start (a1, a2, l1, l2): static closest points at l (the central touch point
-        if touching) and their multipliers; sets the pair's k1, and its tangent axis from the
-        normal."""
+        """A new pair's start (a1, a2, l1, l2, s): static closest points at l (the central touch
+        point if touching) and their multipliers (recovery._multipliers); sets the pair's tangent
+        axis from the normal."""
         self._checkpoint()
         first, second = spec.objects
         d = spec.dim
@@ -1748,8 +1743,7 @@ class ImplicitContactStepper:
                                                normal, contact_patch.band(first.piece, second.piece))
             if seed is not None:
                 a1, a2 = seed
-        l1, l2, k1, s = _multipliers(spec, P1, P2, a1, a2, normal)
-        spec.k1 = k1
+        l1, l2, s = _multipliers(spec, P1, P2, a1, a2, normal)
         spec.normal_l = normal / np.linalg.norm(normal)
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
@@ -1849,9 +1843,6 @@ class ImplicitContactStepper:
         if result.status is ncp.Status.NOT_FINITE:
             cause = ("the rows are undefined at an iterate (degenerate geometry, e.g. a contact normal "
                      "along its tangent axis or a point at a shape's centre)")
-        elif "active k1" in result.message:
-            cause = ("two intersections of functions: the closest point left body 1's active surface "
-                     "k1 and no active one was found (a known limit, [GI] Sec. 7)")
         else:
             cause = ("a hard contact transition inside one step (an impact, a face landing on a face, "
                      "a start from rest with near-zero slip); a smaller h or on_failure='retry' may get through")

@@ -1,15 +1,12 @@
 r"""What a solved step's pairs are checked for before the step is accepted (compiled).
 
-Per pair k of a step problem at its solution z (the rows' reports rep at z, the bodies' poses
-at z in R, p), ``solution_checks`` sets flags[k] to a sum of:
+Per pair k of a step problem at its solution z (the rows' reports rep at z),
+``solution_checks`` sets flags[k] to a sum of:
 
     OFF       friction rows but p_n <= touch (sigma undetermined; recovery.friction_rows)
     ON        friction (mu > 0) without rows but p_n > touch (recovery.friction_rows)
     THROUGH   a fixed half-space as body 2 with its free multiplier l2 <= 0: the far-side root
               of eqs (15)-(19) of a body wholly through it (recovery._passed_through)
-    STALE     body 1 an intersection whose k1 function is inactive at a1, f_k1(a1) < -tol
-              ([GI] Prop. 4.3; recovery.flip_intersections, recovery.adopt_k1); never for a
-              cone-form pair (rows/contact.py), which has no k1
     GAP       p_n not finite, or the gap below -tol (a penetrating solution)
     CONE      friction rows with |(p_t / e_t, p_o / e_o)| > (mu p_n + slack) (1 + 1e-8),
               slack = 1e3 solver tol s_p (a friction impulse outside its cone)
@@ -20,24 +17,15 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
-from .._jit import ZERO, kernel
+from .._jit import kernel
 from . import contact as rc
 
-OFF, ON, THROUGH, STALE, GAP, CONE = 1, 2, 4, 8, 16, 32
+OFF, ON, THROUGH, GAP, CONE = 1, 2, 4, 8, 16
 
 
 @kernel
-def solution_checks(pair_i, pair_f, fpar, z, rep, R, p, tol, solver_tol, touch, flags):
+def solution_checks(pair_i, pair_f, z, rep, tol, solver_tol, touch, flags):
     """flags[k] per pair (module docstring); returns their bitwise or."""
-    r = np.zeros(3)
-    G = np.zeros(3)
-    Hw = np.zeros((3, 3))
-    xi = np.zeros(3)
-    g = np.zeros(3)
-    H = np.zeros((3, 3))
-    a1 = np.zeros(3)
     every = 0
     for k in range(pair_i.shape[0]):
         pi, pf = pair_i[k], pair_f[k]
@@ -53,13 +41,6 @@ def solution_checks(pair_i, pair_f, fpar, z, rep, R, p, tol, solver_tol, touch, 
             f |= ON
         if pi[rc.P_RED2] != 0 and pi[rc.P_M2] > 0 and z[c0 + pi[rc.P_L2]] <= 0.0:
             f |= THROUGH
-        if pi[rc.P_M1] > 1 and pi[rc.P_S] < 0:
-            b1 = pi[rc.P_B1]
-            for q in range(3):
-                a1[q] = rep[k, rc.R_A1 + q]
-            fk = rc._world_eval(fpar[pi[rc.P_F1] + pi[rc.P_K1]], R[b1], p[b1], a1, r, G, Hw, xi, g, H, ZERO)
-            if fk < -tol:
-                f |= STALE
         p_n = s_p * zn
         if not math.isfinite(p_n) or rep[k, rc.R_GAP] < -tol:
             f |= GAP
