@@ -105,6 +105,11 @@ COMPLIANT_CASES = [
      Compliance(1e4, 10.0, 0.01)),
     (3, ("free", "free"), shp.Sphere(0.4), shp.Intersection.box([0.3, 0.2, 0.1]), 1, Friction(0.3),
      Compliance(1e3, 0.0, 0.02)),
+    # body 1 an intersection (the cone form), its layer on either side
+    (3, ("free", "free"), shp.Intersection.box([0.3, 0.2, 0.1]), shp.Sphere(0.4), 1, Friction(0.3, 1.0, 0.8, 0.2),
+     Compliance(1e3, 5.0, 0.02)),
+    (3, ("free", "fixed"), shp.Intersection.box([0.3, 0.2, 0.1]), shp.Intersection.box([1.0, 1.0, 0.1]), 2,
+     Friction(0.4), Compliance(1e4, 0.0, math.inf, "midpoint")),
 ]
 
 
