@@ -804,7 +804,7 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
     x, lo, hi = check_problem(x0, lower, upper, options)
     n = x.shape[0]
     buf = Buffers(n, options.max_iterations)
-    J = H = None
+    J = H = pattern = None
     for req in buf.generator(x, lo, hi, options_array(options)):
         if req == REQ_F:
             buf.Ft[:] = _check_f(fun(buf.xt.copy()), n)
@@ -825,10 +825,10 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
             buf.Jz[:] = J @ buf.zk if sp.issparse(J) else _matvec(J, buf.zk)
         elif req == REQ_NEWTON:
             if sp.issparse(J):
-                H = (sp.csr_matrix((J.data * np.repeat(buf.db, np.diff(J.indptr)), J.indices, J.indptr),
-                                   shape=(n, n)) + sp.diags(buf.da, format="csr"))
-                buf.g[:] = H.T @ buf.Phi
-                d = _sparse_solve(H, -buf.Phi)
+                if pattern is None or not pattern.matches(J):
+                    pattern = _SparsePattern(J)
+                d = pattern.newton(J, buf.da, buf.db, buf.Phi, buf.g)
+                H = pattern                       # (as a matrix only if LM or |H g| asks for it)
                 buf.info[I_SINGULAR] = d is None
                 if d is not None:
                     buf.d[:] = d
@@ -836,6 +836,8 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
                 H = np.empty((n, n))
                 buf.info[I_SINGULAR] = not dense_newton(J, buf.da, buf.db, buf.Phi, H, buf.g, buf.d)
         elif req == REQ_LM:
+            if isinstance(H, _SparsePattern):
+                H = H.matrix()
             if sp.issparse(H):
                 HtH = (H.T @ H).tocsr()
                 mu = buf.fbuf[F_MU] + 16.0 * np.finfo(float).eps * float(np.abs(HtH.diagonal()).max())
@@ -846,6 +848,8 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
             else:
                 buf.info[I_SINGULAR] = not dense_lm(H, buf.g, buf.fbuf[F_MU], buf.d)
         elif req == REQ_HG:
+            if isinstance(H, _SparsePattern):
+                H = H.matrix()
             Hg = H @ buf.g
             buf.fbuf[F_HGSQ] = float(Hg @ Hg)
     return result_from_buffers(buf, options)
@@ -855,6 +859,54 @@ def _matvec(J, v):
     out = np.empty(J.shape[0])
     matvec(J, v, out)
     return out
+
+
+class _SparsePattern:
+    """The Newton step of solve_mcp on a sparse J, kept per CSR pattern of J (a step problem's is
+    fixed while its layout is, formulation.StepProblem._sparse_pattern): H = diag(da) + diag(db) J
+    is formed on J's own data (every row of J stores its diagonal), and its CSR arrays, read as
+    CSC, are H^T, which SuperLU factorises as they are; H d = -Phi is then solved with the
+    transposed factors. Without it, each iteration built H, a diagonal matrix, their sum and a
+    CSC copy as scipy objects: 0.4 ms of Python an iteration next to SuperLU's 0.9 ms (27
+    superquadrics in a box, ~700 unknowns). A pattern without every diagonal entry takes scipy's
+    general route."""
+
+    def __init__(self, J):
+        n = J.shape[0]
+        self.indptr, self.indices = J.indptr.copy(), J.indices.copy()
+        self.rows = np.repeat(np.arange(n), np.diff(self.indptr))
+        diagonal = np.flatnonzero(self.indices == self.rows)
+        self.diag = diagonal if len(diagonal) == n and np.array_equal(self.rows[diagonal], np.arange(n)) else None
+        self.ip, self.ix = self.indptr.astype(np.intc), self.indices.astype(np.intc)
+
+    def matches(self, J) -> bool:
+        return (J.indptr.shape == self.indptr.shape and J.indices.shape == self.indices.shape
+                and np.array_equal(J.indptr, self.indptr) and np.array_equal(J.indices, self.indices))
+
+    def newton(self, J, da, db, Phi, g):
+        """d = -H^{-1} Phi, or None if H is singular; sets g = H^T Phi and keeps H (matrix())."""
+        n = J.shape[0]
+        if self.diag is None:
+            self.H = (sp.csr_matrix((J.data * db[self.rows], J.indices, J.indptr), shape=(n, n))
+                      + sp.diags(da, format="csr"))
+            g[:] = self.H.T @ Phi
+            return _sparse_solve(self.H, -Phi)
+        data = self.data = J.data * db[self.rows]
+        data[self.diag] += da
+        self.H = None
+        g[:] = np.bincount(self.indices, weights=data * Phi[self.rows], minlength=n)
+        try:
+            d = spla.splu(sp.csc_matrix((data, self.ix, self.ip), shape=(n, n))).solve(-Phi, trans="T")
+        except RuntimeError:  # "Factor is exactly singular"
+            return None
+        return d if math.isfinite(d @ d) else None
+
+    def matrix(self):
+        """The last Newton step's H as a CSR matrix."""
+        if self.H is None:
+            n = len(self.indptr) - 1
+            self.H = sp.csr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
+        return self.H
 
 
 def _sparse_solve(H, rhs):
