@@ -44,7 +44,6 @@ from .rows import contact as rc
 MAX_SOLVES = 8      # solves per step (the recoveries below restart at most this often in all)
 RETRY = "retry"
 TOUCH = 1e-9        # scaled normal impulse (units of h m g) above which a pair counts as touching
-NEAR_OPEN = 1e-5    # ... below which a failed solve's pair counts as opening (friction_rows)
 
 
 @dataclass
@@ -82,13 +81,10 @@ def friction_rows(stepper, att: Attempt, problem, result):
     Rows are built for the pairs that touched at the last step; a pair without rows whose
     solution touches (p_n > 0) gets them, and a pair with rows whose solution has p_n = 0 loses
     them (sigma is then undetermined: a singular Jacobian; a converged solution with an open
-    gap keeps its rows and is checked, |p_t| <= mu p_n, by the stepper). A failed solve's pairs
-    with rows lose them already below NEAR_OPEN: Newton stalls with the merit at 1e-8 while such a
-    pair's p_n falls towards 0 (a superquadric leaving a wall of a box, p_n 0.1 -> 1e-8 N s in
-    50 iterations; 27 superquadrics in a box). Solved again from the current solution (a
-    transfer), or from the failed solve's start."""
+    gap keeps its rows and is checked, |p_t| <= mu p_n, by the stepper). Solved again from the
+    current solution (a transfer)."""
     specs = att.specs
-    flags = problem.checks(result.x, att.tol, att.solver_tol, TOUCH if result.success else NEAR_OPEN)
+    flags = problem.checks(result.x, att.tol, att.solver_tol, TOUCH)
     # (not off at a failed iterate for the pairs the last re-solve gave rows: that re-solve is
     # the other recoveries' case, and taking the rows off again cycles on/off until MAX_SOLVES;
     # a box dropped onto a prism lying on a box)
@@ -97,7 +93,7 @@ def friction_rows(stepper, att: Attempt, problem, result):
     if not (on or off):
         return None
     att.previous = (problem, result.x if result.success else att.z0)
-    att.sliding, att.restarts = [k for k in on if _must_slide(problem, result.x, k)], 0
+    att.sliding, att.restarts = [], 0
     att.added = on
     for k in on + off:
         specs[k].with_friction = k in on
@@ -374,35 +370,6 @@ def _stuck_sliding(problem, x) -> list:
         if sl.sigma >= 0 and F[sl.sigma] < 0.0 and x[sl.sigma] < -F[sl.sigma]:
             out.append(k)
     return out
-
-
-def _must_slide(problem, x, k) -> bool:
-    """Whether a 3D pair about to get friction rows cannot stick in this step: at the frictionless
-    solution x, the tangential impulse that would stop its slip, -D^+ v_t with D = W_t M^-1 W_t^T
-    (the pair's tangential Delassus block at the closest points of x, from the bodies' masses at
-    l), lies outside its friction ellipse mu p_n. Such a pair starts its re-solve sliding (see
-    _transfer), the others sticking: from the sticking start a contact that must slide stalls in
-    the FB valley (sigma = 0, friction outside the cone; 27 superquadrics dropped into a box), from
-    the sliding start a contact that must stick does (a ball from rest in a groove, [GI] Example 2
-    at h = 1e-3, slips 1e-4 m/s without friction and must roll)."""
-    spec = problem.specs[k]
-    if spec.dim != 3:
-        return False
-    st = problem.unpack_pair(x, k)
-    vt = st.tangents @ problem.relative_velocity(x, k)
-    if st.p_n <= 0.0 or not np.any(vt):
-        return False
-    D = np.zeros((2, 2))
-    for obj, a in ((spec.obj1, st.a1), (spec.obj2, st.a2)):
-        kin = problem.bodies[obj.body]
-        if kin.vindex is None:
-            continue
-        s = next(s for s, cols in enumerate(problem.layout.v_index) if len(cols) and cols[0] == kin.vindex[0])
-        W = np.array([landing._point_row(kin, a, u) for u in st.tangents])
-        D += W @ np.linalg.solve(problem.skeletons[s].M, W.T)
-    stop = -np.linalg.lstsq(D, vt, rcond=None)[0]     # (D is rank 1 for a one-dof pendulum's point)
-    fr = spec.friction
-    return bool(np.hypot(stop[0] / fr.e_t, stop[1] / fr.e_o) > fr.mu * st.p_n)
 
 
 def _slipping(problem, x, pairs) -> list:
