@@ -12,6 +12,10 @@ recovery objects to is the step's answer; a failed solve that none can restart i
                                       with rows whose gap opened (sigma undetermined)   tests/test_spheres.py
     passed_through       converged    a body wholly through a fixed half-space: the     tests/test_rigid3d.py::test_fast_sphere_
                                       far-side root of eqs (15)-(19) (100 m/s sphere)   does_not_tunnel_through_a_half_space
+    release_idle         failed       only pairs without impulse unconverged: parallel  tests/test_face_campaign.py::test_
+                                      faces hovering within the tolerance have a whole  hovering_parallel_faces_are_released_
+                                      face of closest points (a cylinder sliding on its and_certified
+                                      cap); left out, then certified apart at the end
     face_landing         failed       faces landing on faces: from p_n = 0 the moment   tests/test_face_contact.py::test_box_
                                       rows do not see the contact point (a box resting  started_down_flat_with_spin_lands_in_
                                       flat, started down at 5 m/s with spin)            one_step
@@ -73,6 +77,7 @@ class Attempt:
     z0: np.ndarray | None = None
     joints: list = field(default_factory=list)     # per involved skeleton its JointRows or None
     landings: set = field(default_factory=set)     # face_landing tried without (False) / with friction
+    released: dict = field(default_factory=dict)   # release_idle: (i, j) -> the spec it left out
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -200,6 +205,32 @@ def cold_start(stepper, att: Attempt, problem, result):
     return RETRY
 
 
+def release_idle(stepper, att: Attempt, problem, result):
+    """A failed solve in which every row has converged except the closest-point rows of pairs
+    that carry no impulse: leave those pairs out and solve again.
+
+    The closest points of a pair without impulse do not enter the dynamics, and when two flat
+    faces hover parallel within the contact tolerance they are a whole face: the KKT Jacobian is
+    singular and Newton can stall on them for good (example-robot-data's laikago: a calf box's end
+    face 1e-6 m over the ground box, natural residual 8e-8 on its points after 1000 iterations
+    while every other row was at 2e-11; the step failed at every h the retry policy tried). The
+    re-solve must keep each released pair apart: at its end poses the static closest points
+    (closest.py, a convex problem) must find it separated or touching within the contact
+    tolerance, else the step fails (ImplicitContactStepper._released_contacts). Once per step,
+    order 1 only (order 2's first stage has no such check)."""
+    if result.success or att.released or (stepper.options.order != 1 and not stepper._order1_fallback):
+        return None
+    idle = _idle_stalled(problem, result.x, att.solver_tol)
+    if not idle:
+        return None
+    keep = [k for k in range(len(att.specs)) if k not in idle]
+    att.released = {att.pairs[k]: att.specs[k] for k in idle}
+    att.previous = (problem, result.x)
+    att.specs, att.pairs = [att.specs[k] for k in keep], [att.pairs[k] for k in keep]
+    att.sliding, att.restarts, att.added = [], 0, []
+    return RETRY
+
+
 def reseed(stepper, att: Attempt, problem, result):
     """Restart from exact closest points at the poses the failed iterate implies: Newton on the
     KKT rows of a polytope can stall on a vertex that is no longer the deepest one (a box
@@ -212,7 +243,7 @@ def reseed(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, face_landing, restart_sliding, cold_start, reseed)
+RECOVERIES = (friction_rows, passed_through, release_idle, face_landing, restart_sliding, cold_start, reseed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -279,22 +310,23 @@ def _static_seed(problem, x, spec, tol, always=False):
     return (a1, a2) + _multipliers(spec, P[0], P[1], a1, a2, normal)
 
 
-def _swap_into(old, x, new, z, seeds):
+def _swap_into(old, x, new, z, seeds, src=None):
     """The pairs in seeds (k -> (a1, a2, l1, l2, s) in the new frame) swapped bodies 1 and 2
     between old and new: their points and multipliers from the seeds, their impulses mapped.
     With n' = -n the Gram-Schmidt tangents are t' = t, o' = -o, and the impulse on the new body 2
     is minus the old one on body 2: p_n' = p_n, p_t' = -p_t, p_o' = p_o, p_r' = p_r; sigma is
     unchanged."""
     for k, (a1, a2, l1, l2, s) in seeds.items():
-        so, sn = old.layout.pairs[k], new.layout.pairs[k]
+        ko = k if src is None else src[k]
+        so, sn = old.layout.pairs[ko], new.layout.pairs[k]
         new.pack_points(z, k, a1, a2)
         if sn.s >= 0 and s is None:          # a cone-form pair: s from the points (a start only)
             s = float(np.linalg.norm(np.asarray(a2) - np.asarray(a1)))
         _put_multipliers(z, sn, l1, l2, s)
-        z[sn.p_n] = x[so.p_n] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+        z[sn.p_n] = x[so.p_n] * old.specs[ko].impulse_scale / new.specs[k].impulse_scale
         if sn.sigma >= 0 and so.sigma >= 0:
             flip = np.array([-1.0, 1.0][: len(sn.p_t)])
-            z[sn.p_t] = flip * x[so.p_t] * old.specs[k].impulse_scale / new.specs[k].impulse_scale
+            z[sn.p_t] = flip * x[so.p_t] * old.specs[ko].impulse_scale / new.specs[k].impulse_scale
             if sn.p_r >= 0 and so.p_r >= 0:
                 z[sn.p_r] = x[so.p_r]
             z[sn.sigma] = x[so.sigma]
@@ -313,11 +345,14 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
     re-solve followed a swap (the recovery that swapped the bodies of two intersections, for
     [GI]'s k1, is gone with the cone form; the transfer keeps the case)."""
     z = np.zeros(new.layout.n)
-    swapped = {}
-    for k in range(len(new.specs)):
-        ko, kn = old.keys[k], new.keys[k]
-        if ko != kn and ko == kn[::-1]:
-            st = old.unpack_pair(x, k)
+    index = {key: k for k, key in enumerate(old.keys)}
+    src, swapped = {}, {}             # new pair -> old pair (release_idle leaves pairs out)
+    for k, kn in enumerate(new.keys):
+        if kn in index:
+            src[k] = index[kn]
+        elif kn[::-1] in index:
+            src[k] = index[kn[::-1]]
+            st = old.unpack_pair(x, src[k])
             swapped[k] = (st.a2, st.a1, st.l2, st.l1, None)
     for a, b in zip(old.layout.v_index, new.layout.v_index):
         z[b] = x[a]
@@ -325,9 +360,11 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         z[sn.rows] = x[so.rows]
     for a, b in zip(old.layout.joint_index, new.layout.joint_index):
         z[b] = x[a]
-    for k, (so, sn) in enumerate(zip(old.layout.pairs, new.layout.pairs)):
-        if k in swapped:
+    for k, sn in enumerate(new.layout.pairs):
+        if k in swapped or k not in src:
             continue
+        ko = src[k]
+        so = old.layout.pairs[ko]
         for name in ("a1", "a2", "l1", "l2"):
             z[getattr(sn, name)] = x[getattr(so, name)]
         z[sn.p_n] = x[so.p_n]
@@ -342,19 +379,51 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         if k not in sliding:
             continue
         spec = new.specs[k]
-        st = old.unpack_pair(x, k)
-        vt = st.tangents @ old.relative_velocity(x, k)
+        st = old.unpack_pair(x, ko)
+        vt = st.tangents @ old.relative_velocity(x, ko)
         e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
         # with torsion the slip includes the spin about the normal: e_r (n . w_rel)
-        spin = spec.friction.e_r * float(st.normal @ old._rep[k, rc.R_WREL:rc.R_WREL + 3]) if sn.p_r >= 0 else 0.0
+        spin = spec.friction.e_r * float(st.normal @ old._rep[ko, rc.R_WREL:rc.R_WREL + 3]) if sn.p_r >= 0 else 0.0
         sigma = float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
         if sigma > 0.0:
             z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
             if sn.p_r >= 0:
                 z[sn.p_r] = -spec.friction.mu * x[so.p_n] * spin / sigma
         z[sn.sigma] = sigma
-    _swap_into(old, x, new, z, swapped)
+    _swap_into(old, x, new, z, swapped, src)
     return z
+
+
+def _pair_indices(sl) -> np.ndarray:
+    """Every unknown and row index of one pair (PairSlots)."""
+    parts = [np.atleast_1d(np.asarray(getattr(sl, name), dtype=np.int64))
+             for name in ("a1", "a2", "l1", "l2", "p_t", "rows_geo", "rows_l1", "rows_l2", "rows_fric")
+             if getattr(sl, name) is not None]
+    parts.append(np.array([i for i in (sl.p_n, sl.p_r, sl.sigma, sl.row_n, sl.dbar, sl.dn, sl.p_nr, sl.s)
+                           if i >= 0], dtype=np.int64))
+    return np.unique(np.concatenate(parts))
+
+
+def _idle_stalled(problem, x, tol) -> list:
+    """Pairs without impulse (p_n <= TOUCH) holding all of a failed iterate's natural residual
+    above tol: every row outside them is converged, and at least one of theirs is not, but not
+    their gap row (p_n = 0 with a gap below -tol is a contact the iterate has not found yet)."""
+    F = problem.fun(x)
+    if not np.all(np.isfinite(F)):
+        return []
+    nat = np.abs(x - np.clip(x - F, problem.lower, problem.upper))
+    inside = np.zeros(len(x), bool)
+    stalled = []
+    for k, sl in enumerate(problem.layout.pairs):
+        if x[sl.p_n] > TOUCH or problem.specs[k].compliance is not None or nat[sl.p_n] > tol:
+            continue
+        rows = _pair_indices(sl)
+        inside[rows] = True
+        if nat[rows].max() > tol:
+            stalled.append(k)
+    if not stalled or nat[~inside].max(initial=0.0) > tol:
+        return []
+    return stalled
 
 
 def _stuck_sliding(problem, x) -> list:

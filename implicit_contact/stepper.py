@@ -568,6 +568,9 @@ class ImplicitContactStepper:
             return self._failure(problem, result, att.specs, t0, h)
         contacts, new_last = self._solution(problem, result.x, att.specs)
         bad = self._check_solution(problem, result.x, contacts, att.specs)
+        if att.released and not bad:
+            released, bad = self._released_contacts(problem, result.x, att.released)
+            contacts = contacts + released
         if bad:
             return StepReport(False, result.iterations, result.residual, "INVALID_SOLUTION", tuple(contacts),
                               t0, 1, f"NCP solution rejected at t = {t0:.6g} s: {bad}", problem.layout.n)
@@ -590,7 +593,7 @@ class ImplicitContactStepper:
                               for s, (sp, ss) in enumerate(zip(problem.supports, problem.layout.supports))}
         self._last_joint = {s: (joints[s], result.x[problem.layout.joint_index[k]].copy())
                             for k, s in enumerate(att.involved) if s in joints}
-        if not keep:
+        if not keep and not att.released:
             self._ctx = self._context(h, ordered, pairs, problem, att)
         return StepReport(True, result.iterations, result.residual, result.status.name, tuple(contacts),
                           t0 + h, 1, result.message, problem.layout.n)
@@ -1800,6 +1803,37 @@ class ImplicitContactStepper:
                         f"mu p_n = {spec.friction.mu * c.p_n:.3g}")
         return ""
 
+    def _released_contacts(self, problem, z, released):
+        """(reports, '' or why the solution is refused) of the pairs recovery.release_idle left out
+        of the solve: each must be apart, or touching within the contact tolerance, at the end
+        poses the solution implies; reported with no impulse. The gap is the static closest
+        points' (closest.py); where that solve stalls too (parallel faces: the closest points are
+        a face), a lower bound on it certifies the pair: for any unit n, the bodies' support
+        points give n . (s2(-n) - s1(n)) <= their signed distance, taken at the pair's normal at
+        l and at the normal of the relaxed static solve."""
+        from .closest import closest_points
+        tol = self.options.contact_tolerance
+        reports = []
+        for spec in released.values():
+            first, second = spec.objects
+            b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
+            P = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
+            poses = [(Pk.R, Pk.p) for Pk in P]
+            res = closest_points(first.piece, poses[0], second.piece, poses[1])
+            if res.success:
+                gap, normal = (-float(res.depth) if res.overlapping else float(res.distance)), res.normal
+            else:
+                res = _closest_seed(first.piece, poses[0], second.piece, poses[1])
+                gap, normal = _separation_bound(first.piece, poses[0], second.piece, poses[1],
+                                                (spec.normal_l, res.normal))
+            if not gap >= -tol:
+                return reports, (f"pair {b1.name} / {b2.name}, left out without impulse, is not certified apart at "
+                                 f"the end of the step (gap {gap:.3g}, tolerance {tol:g})")
+            reports.append(ContactReport(b1.body_node, b2.body_node, np.asarray(res.a1, float),
+                                         np.asarray(res.a2, float), np.asarray(normal, float), gap,
+                                         0.0, 0.0, 0.0, 0.0, 0.0, 0.0, b1.name, b2.name))
+        return reports, ""
+
     def _contact_work(self, problem, z, specs):
         """(the energy the step's impulses add beyond free flight [J], the bodies' energy scale
         [J]) for a step of free bodies with a pair of faceted pieces ((0, 0) otherwise). With f
@@ -2067,6 +2101,27 @@ def _active_count(piece, pose, a, tol) -> int:
     R, p = pose
     xi = R.T @ (np.asarray(a, float) - p)
     return sum(abs(float(f.value(xi))) <= tol for f in piece.functions)
+
+
+def _separation_bound(piece1, pose1, piece2, pose2, normals):
+    """(the largest lower bound on the signed distance of two convex pieces over the given
+    directions, that direction): n . (s2(-n) - s1(n)) with s_i the pieces' world support points;
+    -inf where no direction has closed-form supports."""
+    best, best_n = -math.inf, None
+    for n in normals:
+        if n is None or not np.all(np.isfinite(n)) or not np.any(n):
+            continue
+        n = np.asarray(n, float) / np.linalg.norm(n)
+        try:
+            (R1, p1), (R2, p2) = pose1, pose2
+            s1 = R1 @ piece1.support(R1.T @ n) + p1
+            s2 = R2 @ piece2.support(R2.T @ -n) + p2
+        except (NotImplementedError, ValueError):
+            continue
+        bound = float(n @ (s2 - s1))
+        if bound > best:
+            best, best_n = bound, n
+    return best, best_n
 
 
 def _nan_if_none(value):

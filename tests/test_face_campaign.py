@@ -87,3 +87,55 @@ def test_bodies_dropped_onto_bodies_land_without_failing(config):
     assert rec["status"] == "ok", rec["message"]
     assert rec["steps"] == rec["steps_planned"]
     assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+
+
+# campaign runs that raised StepFailure at 66f6a2b on their first step: a cylinder sliding on its
+# cap hovers 0..1e-4 m above the ground box, parallel to it, and Newton stalled on the pair's
+# closest points (a whole face) at natural residuals 8e-9..2e-8 while the pair carried no impulse
+ONCE_FAILED_HOVERS = [
+    (2527894608, "slide", "cylinder", 0.0004032515209777167),
+    (3195590822, "slide", "cylinder", 0.0002900175377451677),
+]
+
+
+@pytest.mark.parametrize("config", ONCE_FAILED_HOVERS, ids=lambda c: f"{c[2]}-{c[0]}")
+def test_hovering_parallel_faces_are_released_and_certified(config):
+    """recovery.release_idle: the stalled pair without impulse is left out, the step solved
+    without it, and certified apart at the end poses; the run completes and coal finds no pair
+    penetrating beyond the contact tolerance after any step."""
+    rec = fc.run(fc.Config(*config, budget=120.0))
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"]
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+    assert rec["energy_excess_rel"] <= fc.ENERGY_TOL
+
+
+def _cube(half, centre):
+    c = np.asarray(centre, float)
+    return ic.shapes.Intersection([ic.shapes.HalfSpace(s * e, half + s * float(e @ c))
+                                   for e in np.eye(3) for s in (1.0, -1.0)])
+
+
+def test_separation_bound_is_the_distance_along_the_normal_and_below_it_elsewhere():
+    """stepper._separation_bound, the certificate of a released pair: two unit cubes 0.3 m apart
+    along z (one tilted 0.2 rad about z, which keeps its bottom face horizontal): along z the
+    bound is the distance to round-off; along a tilted direction it is smaller; overlapping by
+    0.05 m it is -0.05; no direction with supports gives -inf."""
+    from implicit_contact.stepper import _separation_bound
+    lower, upper = _cube(0.5, (0, 0, 0)), _cube(0.5, (0, 0, 0))
+    c, s = math.cos(0.2), math.sin(0.2)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    I = np.eye(3)
+    ez = np.array([0.0, 0.0, 1.0])
+    bound, n = _separation_bound(lower, (I, np.zeros(3)), upper, (Rz, np.array([0.2, 0.1, 1.3])), (ez,))
+    assert bound == pytest.approx(0.3, abs=1e-12) and n == pytest.approx(ez)
+    tilted = np.array([0.1, 0.0, 1.0])
+    lower_bound, _ = _separation_bound(lower, (I, np.zeros(3)), upper, (Rz, np.array([0.2, 0.1, 1.3])), (tilted,))
+    assert lower_bound < 0.3
+    best, n = _separation_bound(lower, (I, np.zeros(3)), upper, (Rz, np.array([0.2, 0.1, 1.3])), (tilted, ez))
+    assert best == pytest.approx(0.3, abs=1e-12) and n == pytest.approx(ez)
+    deep, _ = _separation_bound(lower, (I, np.zeros(3)), upper, (I, np.array([0.0, 0.0, 0.95])), (ez,))
+    assert deep == pytest.approx(-0.05, abs=1e-12)
+    half_space = ic.shapes.HalfSpace([0.0, 0.0, 1.0], 0.0)
+    none, n = _separation_bound(half_space, (I, np.zeros(3)), upper, (I, np.array([0.0, 0.0, 2.0])), (ez,))
+    assert none == -math.inf and n is None
