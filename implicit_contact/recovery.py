@@ -215,8 +215,7 @@ def release_idle(stepper, att: Attempt, problem, result):
     face 1e-6 m over the ground box, natural residual 8e-8 on its points after 1000 iterations
     while every other row was at 2e-11; the step failed at every h the retry policy tried). The
     re-solve must keep each released pair apart: at its end poses the static closest points
-    (closest.py, a convex problem) must find it separated or touching within the contact
-    tolerance, else the step fails (ImplicitContactStepper._released_contacts). Once per step,
+    (closest.py, a convex problem) must find it apart (gap >= 0), else the step fails (ImplicitContactStepper._released_contacts). Once per step,
     order 1 only (order 2's first stage has no such check)."""
     if result.success or att.released or (stepper.options.order != 1 and not stepper._order1_fallback):
         return None
