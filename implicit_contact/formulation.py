@@ -446,6 +446,10 @@ class StepProblem:
         sl = self._vslice[body_index]
         return z[sl] if sl is not None else _EMPTY
 
+    def end_poses(self, z, spec) -> list:
+        """[Pose of body 1, Pose of body 2] of a pair spec at the end of the step z implies."""
+        return [self.bodies[o.body].pose(self.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
+
     def points(self, z, k):
         """World closest points a1, a2 of pair k and their Jacobians wrt their unknowns."""
         sl = self.layout.pairs[k]

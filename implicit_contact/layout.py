@@ -92,6 +92,10 @@ class PairSlots:
         self.rows_l1s, self.rows_l2s = _as_slice(self.rows_l1), _as_slice(self.rows_l2)
         self.l1_bounded = np.arange(len(self.rows_l1))   # which functions have complementarity rows
         self.l2_bounded = np.arange(len(self.rows_l2))
+        # the pair's rigid unknowns (each row shares its unknown's index): points, s, multipliers,
+        # p_n, friction; not a quasi-rigid layer's dbar, dn, p_nr
+        self.columns = np.concatenate([self.a1, self.a2, [self.s] if self.s >= 0 else [], self.l1, self.l2,
+                                       [self.p_n], self.rows_fric]).astype(np.int64)
 
 
 @dataclass

@@ -151,7 +151,7 @@ def face_landing(stepper, att: Attempt, problem, result):
         if found is None:
             continue
         spec, sl = problem.specs[k], problem.layout.pairs[k]
-        poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
+        poses = problem.end_poses(z, spec)
         l1, l2, s = _multipliers(spec, poses[0], poses[1], found.x_end, found.x_end, problem._pairs_at[k][2])
         problem.pack_points(z, k, found.x_end, found.x_end)
         s_p = spec.impulse_scale
@@ -215,11 +215,12 @@ def release_idle(stepper, att: Attempt, problem, result):
     face 1e-6 m over the ground box, natural residual 8e-8 on its points after 1000 iterations
     while every other row was at 2e-11; the step failed at every h the retry policy tried). The
     re-solve must keep each released pair apart: at its end poses the static closest points
-    (closest.py, a convex problem) must find it apart (gap >= 0), else the step fails (ImplicitContactStepper._released_contacts). Once per step,
-    order 1 only (order 2's first stage has no such check)."""
+    (closest.py, a convex problem) must find it apart (gap >= 0), else the step fails
+    (ImplicitContactStepper._released_contacts). Once per step, order 1 only (order 2's first
+    stage has no such check)."""
     if result.success or att.released or (stepper.options.order != 1 and not stepper._order1_fallback):
         return None
-    idle = _idle_stalled(problem, result.x, att.solver_tol)
+    idle = _idle_stalled(problem, result, att.solver_tol)
     if not idle:
         return None
     keep = [k for k in range(len(att.specs)) if k not in idle]
@@ -294,7 +295,7 @@ def _static_seed(problem, x, spec, tol, always=False):
     fixed half-space: its point below the plane); None if the static solve fails, unless always
     (then _closest_seed's fallbacks)."""
     from .closest import closest_points
-    P = [problem.bodies[o.body].pose(problem.body_velocity(x, o.body)) for o in (spec.obj1, spec.obj2)]
+    P = problem.end_poses(x, spec)
     first, second = spec.objects
     res = (_closest_seed if always else closest_points)(first.piece, (P[0].R, P[0].p), second.piece, (P[1].R, P[1].p))
     if not res.success and not always:
@@ -393,21 +394,11 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
     return z
 
 
-def _pair_indices(sl) -> np.ndarray:
-    """Every unknown and row index of one pair (PairSlots)."""
-    parts = [np.atleast_1d(np.asarray(getattr(sl, name), dtype=np.int64))
-             for name in ("a1", "a2", "l1", "l2", "p_t", "rows_geo", "rows_l1", "rows_l2", "rows_fric")
-             if getattr(sl, name) is not None]
-    parts.append(np.array([i for i in (sl.p_n, sl.p_r, sl.sigma, sl.row_n, sl.dbar, sl.dn, sl.p_nr, sl.s)
-                           if i >= 0], dtype=np.int64))
-    return np.unique(np.concatenate(parts))
-
-
-def _idle_stalled(problem, x, tol) -> list:
+def _idle_stalled(problem, result, tol) -> list:
     """Pairs without impulse (p_n <= TOUCH) holding all of a failed iterate's natural residual
     above tol: every row outside them is converged, and at least one of theirs is not, but not
     their gap row (p_n = 0 with a gap below -tol is a contact the iterate has not found yet)."""
-    F = problem.fun(x)
+    x, F = result.x, result.f
     if not np.all(np.isfinite(F)):
         return []
     nat = np.abs(x - np.clip(x - F, problem.lower, problem.upper))
@@ -416,7 +407,7 @@ def _idle_stalled(problem, x, tol) -> list:
     for k, sl in enumerate(problem.layout.pairs):
         if x[sl.p_n] > TOUCH or problem.specs[k].compliance is not None or nat[sl.p_n] > tol:
             continue
-        rows = _pair_indices(sl)
+        rows = sl.columns
         inside[rows] = True
         if nat[rows].max() > tol:
             stalled.append(k)

@@ -1784,7 +1784,7 @@ class ImplicitContactStepper:
                 return (f"pair {c.name_a} / {c.name_b}: the contact normal turned over within the step "
                         f"(n . n_l = {float(c.normal @ spec.normal_l):.3g}): one body went through the other")
             if landing.faceted_pair(spec):
-                poses = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
+                poses = problem.end_poses(z, spec)
                 depth = landing.vertex_depth(*spec.objects, *poses)
                 if depth > tol:
                     return (f"pair {c.name_a} / {c.name_b}: a vertex of one lies {depth:.3g} inside the other at "
@@ -1816,8 +1816,7 @@ class ImplicitContactStepper:
         for spec in released.values():
             first, second = spec.objects
             b1, b2 = self.scene.bodies[first.body], self.scene.bodies[second.body]
-            P = [problem.bodies[o.body].pose(problem.body_velocity(z, o.body)) for o in (spec.obj1, spec.obj2)]
-            poses = [(Pk.R, Pk.p) for Pk in P]
+            poses = [(P.R, P.p) for P in problem.end_poses(z, spec)]
             res = closest_points(first.piece, poses[0], second.piece, poses[1])
             if res.success:
                 gap, normal = (-float(res.depth) if res.overlapping else float(res.distance)), res.normal
@@ -1871,8 +1870,7 @@ class ImplicitContactStepper:
             nat = np.full(problem.layout.n, np.nan)
         pair_name, worst = "", -1.0
         for k, sl in enumerate(problem.layout.pairs):
-            cols = np.concatenate([sl.a1, sl.a2, [sl.s] if sl.s >= 0 else [], sl.l1, sl.l2, [sl.p_n],
-                                   sl.rows_fric]).astype(int)
+            cols = sl.columns
             r = float(np.nanmax(nat[cols])) if np.any(np.isfinite(nat[cols])) else math.inf
             if r > worst:
                 pair_name, worst = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}", r
