@@ -124,11 +124,13 @@ def tooth(i: int) -> shp.Superellipse:
                             rotation=th)
 
 
+@functools.lru_cache(maxsize=1)
 def lock_piece() -> shp.Union:
     """The part: disc (part 0) and the six teeth (parts 1..6), body frame at the disc centre."""
     return shp.Union([shp.Disc(R)] + [tooth(i) for i in range(6)])
 
 
+@functools.lru_cache(maxsize=2)
 def fingertip(side: str) -> shp.Intersection:
     """A jaw's fingertip in its body frame, origin at the vertex: eqs 58-61's top edge y <= 0 and
     inside edge (x >= 0 on the right jaw, x <= 0 on the left), then the two far edges."""

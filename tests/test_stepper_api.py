@@ -200,3 +200,39 @@ def test_invalid_policy_and_options():
         ic.StepperOptions(contact_tolerance=-1.0)
     with pytest.raises(ValueError, match="mu"):
         ic.Friction(mu=-0.1)
+
+
+def test_steppers_on_equal_records_share_one_shape_and_step_alike():
+    """attach() records are parsed into one shape object per record (dart_adapter._shape_of_record:
+    an intersection's analysis is paid once per process). Sharing is safe only if stepping never
+    changes a shape: a second world built after the first has been stepped through a tilted
+    landing must take the bit-identical trajectory."""
+    from implicit_contact import dart_adapter
+
+    def world_with_box():
+        world = dart.simulation.World()
+        world.setTimeStep(2e-3)
+        _ground3d(world)
+        box = ic.shapes.Intersection([ic.shapes.HalfSpace(n, 0.1) for n in
+                                      ([1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1])])
+        skel, body = _free_ball(world, shape=box, z=0.12)
+        skel.setPositions([0.3, 0.2, 0.0, 0.0, 0.0, 0.2])
+        skel.setVelocities([1.0, -2.0, 3.0, 0.5, 0.0, -1.0])
+        return world, body
+
+    w1, b1 = world_with_box()
+    w2, b2 = world_with_box()
+    s1 = ic.ImplicitContactStepper(w1)
+    states1, touching = [_state(w1)], 0
+    for _ in range(60):
+        touching += any(c.p_n > 0.0 for c in s1.step().contacts)
+        states1.append(_state(w1))
+    s2 = ic.ImplicitContactStepper(w2)
+    shape1 = dart_adapter._shapes_of(b1, planar=False)[0].shape
+    assert dart_adapter._shapes_of(b2, planar=False)[0].shape is shape1
+    states2 = [_state(w2)]
+    for _ in range(60):
+        s2.step()
+        states2.append(_state(w2))
+    assert touching >= 10                 # it landed: contact steps were taken
+    assert all(_same(a, b) for a, b in zip(states1, states2))
