@@ -26,6 +26,11 @@ recovery objects to is the step's answer; a failed solve that none can restart i
                                       wrong (a pendulum leaving the obstacle it hit)    strikes_ellipsoid_without_penetration_...
     reseed               failed       Newton stalled on a polytope vertex that is no     tests/test_rigid3d.py::test_dart_box_
                                       longer the deepest (a box slapping flat)          dropped_on_an_edge_lands_flat_...
+    friction_homotopy    failed       every other recovery gave up and friction is      tests/test_face_campaign.py::test_
+                                      strong against the motion: Newton heads for far-  friction_homotopy_...
+                                      off impulses (a tumbling double pendulum, mu = 1,
+                                      a box dropped on a box at h = 1.35e-3); the step
+                                      solved at 1/4, 1/2, 3/4 of mu starts the real one
 
 Each recovery is a function (stepper, attempt, problem, result) -> None (does not apply), RETRY
 (solve again as arranged on the attempt) or a failed McpResult that ends the step's solves;
@@ -78,6 +83,8 @@ class Attempt:
     joints: list = field(default_factory=list)     # per involved skeleton its JointRows or None
     landings: set = field(default_factory=set)     # face_landing tried without (False) / with friction
     released: dict = field(default_factory=dict)   # release_idle: (i, j) -> the spec it left out
+    homotopy: bool = False                         # friction_homotopy tried
+    state: object = None                           # the step's state (stepper._read), for friction_homotopy
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -243,7 +250,42 @@ def reseed(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, release_idle, face_landing, restart_sliding, cold_start, reseed)
+# the fractions of every pair's mu at which friction_homotopy solves the step before solving it
+HOMOTOPY = (0.25, 0.5, 0.75)
+
+
+def friction_homotopy(stepper, att: Attempt, problem, result):
+    """The last resort of a failed solve with friction: solve the step with every pair's mu scaled
+    by 1/4, 1/2 and 3/4 in turn, each stage from the last one's iterate (the first from the warm
+    start), and start the step's own solve from the last stage.
+
+    Where friction is strong against the motion, Newton from the warm start can head for far-off
+    impulses and stall there. example-robot-data's double_pendulum (free base, tumbling on the
+    ground at 9.7 rad/s, mu = 1): one step after link 2 hit the ground, the iterates held normal
+    impulses of 250-440 h m g with the friction on its cone and sigma = 0, natural residual 2.75, at
+    every h the retry policy tried; the same run with mu = 0.3 completes. At a quarter of mu the
+    step converges, and each stage starts the next within Newton's reach; a stage that fails
+    still hands on its last iterate (measured: the stages at 1/4 and 1/2 of mu failed and the one
+    at 3/4 converged from there, then the step itself in one iteration). The stages are solves
+    like any other (the step's iteration budget counts them) and only their start is kept: the
+    step's answer is the step's own solve, judged as always. Once per step, when a solve remains,
+    order 1 only (order 2's first stage keeps its own policy)."""
+    if result.success or att.homotopy or att.index >= MAX_SOLVES - 1 or att.state is None:
+        return None
+    if stepper.options.order != 1 and not stepper._order1_fallback:
+        return None
+    if not any(sp.with_friction and sp.friction.mu > 0.0 for sp in att.specs):
+        return None
+    att.homotopy = True
+    z = stepper._friction_stages(att, HOMOTOPY)
+    if z is None:
+        return None
+    att.reseeded = z
+    return RETRY
+
+
+RECOVERIES = (friction_rows, passed_through, release_idle, face_landing, restart_sliding, cold_start, reseed,
+              friction_homotopy)
 
 
 # ---------------------------------------------------------------------------------------------

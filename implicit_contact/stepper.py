@@ -1346,6 +1346,7 @@ class ImplicitContactStepper:
         """Solve the step's MCP; after each solve the recoveries (recovery.RECOVERIES, in order)
         may arrange another (recovery.py lists them with the cases that needed them)."""
         problem = result = None
+        att.state = state
         for att.index in range(recovery.MAX_SOLVES):
             problem = self._problem(state, att)
             if att.reseeded is not None:
@@ -1365,6 +1366,28 @@ class ImplicitContactStepper:
                     result = outcome          # a recovery turned the solve into a failure
                 break
         return problem, result
+
+    def _friction_stages(self, att, fractions):
+        """recovery.friction_homotopy's stages: the attempt's step solved with every pair's mu scaled
+        by each fraction in turn, each from the last stage's iterate (the first from the warm start).
+        Returns the last iterate (None if it is not finite); the specs' frictions are restored."""
+        state = att.state
+        frictions = [sp.friction for sp in att.specs]
+        z = None
+        try:
+            for fraction in fractions:
+                for sp, fr in zip(att.specs, frictions):
+                    sp.friction = replace(fr, mu=fraction * fr.mu)
+                problem = self._problem(state, att)
+                if z is None:
+                    z = self._warm_start(problem, att, state)
+                z = self._solve(problem, z).x
+                if not np.all(np.isfinite(z)):
+                    return None
+        finally:
+            for sp, fr in zip(att.specs, frictions):
+                sp.friction = fr
+        return z
 
     def _solution(self, problem, z, specs):
         """(the contact reports, the memory of the next step) of a solved step."""

@@ -139,3 +139,42 @@ def test_separation_bound_is_the_distance_along_the_normal_and_below_it_elsewher
     half_space = ic.shapes.HalfSpace([0.0, 0.0, 1.0], 0.0)
     none, n = _separation_bound(half_space, (I, np.zeros(3)), upper, (I, np.array([0.0, 0.0, 2.0])), (ez,))
     assert none == -math.inf and n is None
+
+
+# campaign runs that raised StepFailure at adbd811 after every other recovery had given up (200
+# iterations at h / 16, natural residuals 0.04-10): a box dropped onto a welded box and a
+# cylinder landing; both complete once the step is first solved at fractions of mu
+ONCE_FAILED_STRONG_FRICTION = [
+    # (config, bound on the worst relative energy gain of a step over the free-flight step's)
+    ((2940199841, "stack", "box", 0.0013539913926637443), 1e-6),
+    ((3859907210, "land", "cylinder", 0.0001419246419164841), fc.ENERGY_TOL),
+]
+
+
+@pytest.mark.parametrize("config, energy_bound", ONCE_FAILED_STRONG_FRICTION, ids=lambda c: f"{c[2]}-{c[0]}"
+                         if isinstance(c, tuple) else "")
+def test_friction_homotopy_starts_steps_newton_could_not(config, energy_bound):
+    """recovery.friction_homotopy: the run completes, its stages were used, and coal finds no pair
+    penetrating beyond the contact tolerance after any step. Energy: the cylinder gains nothing
+    beyond the free-flight step; the box, once on the lower box, gains up to 3.6e-7 of its energy
+    scale in each of five steps in a row (steps 8-12, taken without the homotopy: the first-order
+    scheme's O(h^2) gain of a body pivoting on an edge, README "Boxes and flat faces"), while the
+    three steps the homotopy started lose energy."""
+    from implicit_contact import recovery
+    used = []
+    stages = ic.ImplicitContactStepper._friction_stages
+
+    def counted(stepper, att, fractions):
+        used.append(fractions)
+        return stages(stepper, att, fractions)
+
+    ic.ImplicitContactStepper._friction_stages = counted
+    try:
+        rec = fc.run(fc.Config(*config, budget=120.0))
+    finally:
+        ic.ImplicitContactStepper._friction_stages = stages
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"]
+    assert used and all(f == recovery.HOMOTOPY for f in used)
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+    assert rec["energy_excess_rel"] <= energy_bound
