@@ -225,7 +225,7 @@ def release_idle(stepper, att: Attempt, problem, result):
     (closest.py, a convex problem) must find it apart (gap >= 0), else the step fails
     (ImplicitContactStepper._released_contacts). Once per step, order 1 only (order 2's first
     stage has no such check)."""
-    if result.success or att.released or (stepper.options.order != 1 and not stepper._order1_fallback):
+    if result.success or att.released or not _gi_step(stepper):
         return None
     idle = _idle_stalled(problem, result, att.solver_tol)
     if not idle:
@@ -250,6 +250,12 @@ def reseed(stepper, att: Attempt, problem, result):
     return RETRY
 
 
+def _gi_step(stepper) -> bool:
+    """Whether the step being solved is [GI]'s (order 1, or order 2's fallback to it): the
+    recoveries that re-solve without or around the step's rows apply only there."""
+    return stepper.options.order == 1 or stepper._order1_fallback
+
+
 # the fractions of every pair's mu at which friction_homotopy solves the step before solving it
 HOMOTOPY = (0.25, 0.5, 0.75)
 
@@ -270,9 +276,7 @@ def friction_homotopy(stepper, att: Attempt, problem, result):
     like any other (the step's iteration budget counts them) and only their start is kept: the
     step's answer is the step's own solve, judged as always. Once per step, when a solve remains,
     order 1 only (order 2's first stage keeps its own policy)."""
-    if result.success or att.homotopy or att.index >= MAX_SOLVES - 1 or att.state is None:
-        return None
-    if stepper.options.order != 1 and not stepper._order1_fallback:
+    if result.success or att.homotopy or att.index >= MAX_SOLVES - 1 or not _gi_step(stepper):
         return None
     if not any(sp.with_friction and sp.friction.mu > 0.0 for sp in att.specs):
         return None
