@@ -86,6 +86,9 @@ NEAR_ACTIVE = 0.1          # [L] members within this of the surface get a starti
 ROTATION_TOL = 1e-9        # accepted |R^T R - I|_max of a pose
 SMALL_HAT_DISTANCE = 1e-6  # [L] below this a distance from eqs (24)-(27) alone is re-checked
 SUPPORT_STEPS = 4          # fixed-point steps d <- s2(-d) - s1(d) of the support-point start
+POLYTOPE_SUM_WEIGHT = 1e5  # weight of the sum-to-one rows of the polytopes' vertex NNLS (positions in L)
+POLYTOPE_ACTIVE = 1e-9     # [L] a plane this close to the closest point is active (its multiplier may be > 0)
+POLYTOPE_RESIDUAL = 1e-8   # [L] largest residual of eqs (24)-(27) the vertex QP's answer may leave
 PATIENT_FACTOR = 20        # the last KKT solve of bodies shown apart gets this many times the iterations
 
 
@@ -138,7 +141,8 @@ class ClosestPointResult:
     form: which system gave the answer: "eq15-18" (body 1 one function), "eq15-18 swapped"
         (body 2 one function, converted), "eq28-31" (both intersections: eqs 24-27 then a
         polish with k1), "eq24-27" (the polish failed), "eq28-31 touching" (depth problem at
-        t* = 0, then polished), "depth" (overlapping, or touching unpolished), "failed".
+        t* = 0, then polished), "depth" (overlapping, or touching unpolished), "polytopes" (two
+        bounded polytopes apart: the vertex quadratic program, _Solver.polytopes), "failed".
     """
 
     a1: np.ndarray
@@ -173,6 +177,14 @@ class _Body:
         self._b0 = R.T @ (o - p)        # body point of y = 0
         self._B = L * R.T               # d x_body / d y
         self._H = None
+        self._linear = None
+        if self.m > 1 and all(isinstance(f, (HalfSpace, HalfPlane)) for f in self.functions):
+            # a polytope: values N y - b, gradients N, Hessians 0 (one product, not m calls)
+            N, b = self.linear_rows()
+            N.flags.writeable = b.flags.writeable = False
+            zero = np.zeros((self.m, self.dim, self.dim))
+            zero.flags.writeable = False
+            self._linear = (N, b, zero)
         if self.m == 1 and self.functions[0].constant_hessian:
             # quadrics and planes: the scaled world Hessian L R H R^T is fixed for the solve
             H = self.functions[0].hessian(self._b0)
@@ -180,6 +192,16 @@ class _Body:
 
     def to_body(self, y):
         return self._b0 + self._B @ y
+
+    @property
+    def vertices(self):
+        """Scaled world vertices (k, dim) of a bounded polytope, else None."""
+        if self._linear is None or not self.shape.bounded:
+            return None
+        V = self.shape.face_points()
+        if len(V) == 0:
+            return None
+        return (V @ self.R.T + self.p - self.o) / self.L
 
     def world(self, y):
         return self.o + self.L * y
@@ -201,6 +223,9 @@ class _Body:
                 return np.array([fv / L]), (R @ fg)[None], (L * (R @ fh @ R.T))[None]
             fv, fg = f.value_gradient(xb)
             return np.array([fv / L]), (R @ fg)[None], None
+        if self._linear is not None:
+            N, b, zero = self._linear
+            return N @ y - b, N, (zero if order >= 2 else None)
         v = np.empty(m)
         G = np.empty((m, d))
         H = np.empty((m, d, d)) if order >= 2 else None
@@ -215,6 +240,8 @@ class _Body:
         return v, G, H
 
     def values(self, y):
+        if self._linear is not None:
+            return self._linear[0] @ y - self._linear[1]
         xb = self.to_body(y)
         return np.array([f.value(xb) for f in self.functions]) / self.L
 
@@ -462,6 +489,108 @@ def _depth_form(B1: _Body, B2: _Body):
     return fun, jac, lower, np.full(n, np.inf)
 
 
+def _middle_of_closest_faces(V1, V2, a1, a2, B1, B2, centre):
+    """Of all closest point pairs of two polytopes apart, the one under the bodies' centre or
+    else the middle one.
+
+    With n = (a2 - a1)/|a2 - a1|, the closest pairs are (x, x + (a2 - a1)) for x in
+    F1 cap (F2 - (a2 - a1)), F1 and F2 the faces of the polytopes that support n and -n; when
+    that set is more than a point (a face over a face, an edge over a face, parallel edges) the
+    vertex program's answer is one of its corners, a poor start for a contact that will press on
+    the whole set. The projection of centre (between the interior points) along n is taken
+    when it lies in the set; else the set is clipped in the plane of n (Sutherland-Hodgman) and
+    its vertex mean taken. The given pair when the set is a point or the point found is not
+    within POLYTOPE_ACTIVE of both surfaces."""
+    d = a2 - a1
+    n = d / np.linalg.norm(d)
+    dim = len(n)
+    x = centre - float((centre - a1) @ n) * n
+    if float(np.max(B1.values(x))) <= POLYTOPE_ACTIVE and float(np.max(B2.values(x + d))) <= POLYTOPE_ACTIVE:
+        return x, x + d
+    F1 = V1[V1 @ n >= float(np.max(V1 @ n)) - POLYTOPE_ACTIVE]
+    F2 = V2[V2 @ n <= float(np.min(V2 @ n)) + POLYTOPE_ACTIVE] - d
+    if len(F1) < 2 or len(F2) < 2:
+        return a1, a2
+    if dim == 2:
+        e = np.array([-n[1], n[0]])
+        s1, s2 = F1 @ e, F2 @ e
+        lo, hi = max(s1.min(), s2.min()), min(s1.max(), s2.max())
+        if not hi > lo:
+            return a1, a2
+        x = a1 + (0.5 * (lo + hi) - float(a1 @ e)) * e
+    else:
+        e1 = np.cross(n, np.eye(3)[int(np.argmin(np.abs(n)))])
+        e1 /= np.linalg.norm(e1)
+        E = np.array([e1, np.cross(n, e1)])
+        poly1, poly2 = _ordered(F1 @ E.T), _ordered(F2 @ E.T)
+        if len(poly1) < 3 and len(poly2) < 3:
+            return a1, a2                       # crossing or parallel edges: left as they are
+        clip, subject = (poly1, poly2) if len(poly1) >= 3 else (poly2, poly1)
+        region = _clip(subject, clip)
+        if len(region) < 2:
+            return a1, a2
+        c = region.mean(axis=0)
+        x = a1 + E.T @ (c - E @ a1)
+    if float(np.max(B1.values(x))) > POLYTOPE_ACTIVE or float(np.max(B2.values(x + d))) > POLYTOPE_ACTIVE:
+        return a1, a2
+    return x, x + d
+
+
+def _ordered(P):
+    """The convex polygon of 2D points P, counter-clockwise (a segment: its two ends)."""
+    c = P.mean(axis=0)
+    u = P - c
+    spread = float(np.max(np.linalg.norm(u, axis=1)))
+    if spread == 0.0:
+        return P[:1]
+    ang = np.arctan2(u[:, 1], u[:, 0])
+    Q = P[np.argsort(ang)]
+    # keep the hull's corners: drop points on or inside an edge (collinear, duplicates)
+    out = []
+    for q in np.r_[Q, Q[:2]]:
+        while len(out) >= 2 and _cross(out[-2], out[-1], q) <= 1e-12 * spread * spread:
+            out.pop()
+        out.append(q)
+    hull = np.array(out[1:-1] if len(out) > 3 else out)
+    if len(hull) < 3:           # collinear points: the extreme two along their direction
+        k = int(np.argmax(np.linalg.norm(u, axis=1)))
+        t = u @ u[k]
+        return np.array([P[int(np.argmin(t))], P[int(np.argmax(t))]])
+    return hull
+
+
+def _cross(o, a, b):
+    return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+
+def _clip(subject, polygon):
+    """Sutherland-Hodgman: the part of the polygon (or segment) subject inside the convex
+    counter-clockwise polygon."""
+    out = list(subject)
+    k = len(polygon)
+    for i in range(k):
+        p, q = polygon[i], polygon[(i + 1) % k]
+        pts, out = out, []
+        closed = len(pts) >= 3
+        for j in range(len(pts)):
+            cur = pts[j]
+            if j == 0 and not closed:
+                if _cross(p, q, cur) >= 0.0:
+                    out.append(cur)
+                continue
+            prev = pts[j - 1]
+            ci, pi = _cross(p, q, cur), _cross(p, q, prev)
+            if ci >= 0.0:
+                if pi < 0.0:
+                    out.append(prev + (cur - prev) * (pi / (pi - ci)))
+                out.append(cur)
+            elif pi >= 0.0:
+                out.append(prev + (cur - prev) * (pi / (pi - ci)))
+        if not out:
+            break
+    return np.array(out)
+
+
 def _start_multipliers(columns: np.ndarray, rhs: np.ndarray, values: np.ndarray) -> np.ndarray:
     """l >= 0 with sum_j l_j columns_j ~ rhs over the members near their surface."""
     m = len(values)
@@ -587,6 +716,9 @@ class _Solver:
 
     # -- main --------------------------------------------------------------------------------
     def run(self) -> ClosestPointResult:
+        V1, V2 = self.B1.vertices, self.B2.vertices
+        if V1 is not None and V2 is not None:
+            return self.polytopes(V1, V2)
         start = self.supports()
         if start is None or (not start[2] and (self.B1.m > 1 or self.B2.m > 1)
                              and self.B1.plane is None and self.B2.plane is None):
@@ -692,6 +824,74 @@ class _Solver:
         l1[k1] = lh1[k1] * B1.L
         return self.result(a1, a2, l1, lh2 / lh1[k1], k1, ratio1, overlapping=False, depth=0.0,
                            form="eq24-27", sol=sol)
+
+    def polytopes(self, V1, V2):
+        """Two bounded polytopes: problem (9) is a convex quadratic program, and Newton on its
+        KKT systems is fragile there (a face parallel to a face makes the closest points
+        non-unique and the Jacobian singular: a UR10 link's 86-plane hull 1.5 mm above a ground
+        box, at random poses, took 1331 iterations and 33 s and failed). Solved exactly instead,
+        over the vertices: a1 = V1^T w1, a2 = V2^T w2 with w1, w2 on the unit simplices,
+
+            min |V1^T w1 - V2^T w2|^2,
+
+        as a non-negative least-squares problem (Lawson-Hanson, finite) whose two sum-to-one
+        rows carry the weight POLYTOPE_SUM_WEIGHT; the weights are then renormalised, so a1 and
+        a2 lie in the polytopes exactly. Apart: the multipliers of (24)-(25) by NNLS over the
+        planes active at a1 and a2, polished with eqs (28)-(31) when that converges to the same
+        distance, else the vertex answer in their form (form "polytopes"); touching or
+        overlapping: the depth linear program (depth_lp)."""
+        B1, B2 = self.B1, self.B2
+        k1n = len(V1)
+        W = POLYTOPE_SUM_WEIGHT
+        A = np.zeros((B1.dim + 2, k1n + len(V2)))
+        A[:B1.dim, :k1n], A[:B1.dim, k1n:] = V1.T, -V2.T
+        A[B1.dim, :k1n] = A[B1.dim + 1, k1n:] = W
+        rhs = np.zeros(B1.dim + 2)
+        rhs[B1.dim:] = W
+        w, _ = nnls(A, rhs)
+        w1, w2 = w[:k1n], w[k1n:]
+        s1, s2 = float(w1.sum()), float(w2.sum())
+        if not (s1 > 0.0 and s2 > 0.0):
+            return self.depth(0.5 * (self.c1 + self.c2))
+        a1, a2 = V1.T @ w1 / s1, V2.T @ w2 / s2
+        dist = float(np.linalg.norm(a2 - a1))
+        if dist <= self.tol:
+            return self.depth(0.5 * (a1 + a2))
+        a1, a2 = _middle_of_closest_faces(V1, V2, a1, a2, B1, B2, 0.5 * (self.c1 + self.c2))
+        v1, G1, _ = B1.eval(a1, order=1)
+        v2, G2, _ = B2.eval(a2, order=1)
+        lh1, lh2 = np.zeros(B1.m), np.zeros(B2.m)
+        for lh, v, G, rhs_ in ((lh1, v1, G1, a2 - a1), (lh2, v2, G2, a1 - a2)):
+            on = np.flatnonzero(v >= -POLYTOPE_ACTIVE)
+            lh[on] = nnls(G[on].T, rhs_)[0]
+        if not np.any(lh1 > 0.0):
+            return self.failure(a1, a2, "no plane of body 1 is active at the closest point of two polytopes")
+        fun, _, _, _ = _hat_form(B1, B2)
+        z = np.concatenate([a1, a2, lh1, lh2])
+        r = fun(z)
+        # the natural residual of (24)-(27): stationarity, and min(lh, -f) of (26)-(27)
+        d = B1.dim
+        residual = max(float(np.max(np.abs(r[:2 * d]))), float(np.max(np.abs(np.minimum(z[2 * d:], r[2 * d:])))))
+        ok = residual <= POLYTOPE_RESIDUAL
+        sol = _LpOutcome(z, Status.CONVERGED if ok else Status.SINGULAR, 0, residual,
+                         f"vertex quadratic program (NNLS): residual of eqs (24)-(27) {residual:.3g}")
+        self.last = sol
+        k1 = int(np.argmax(lh1))
+        # In (24)-(27) the multipliers are proportional to the distance, so their ratios lose
+        # accuracy as the polytopes close in: polish with (28)-(31) from here, as kkt does; the
+        # polish may fail where the closest points are not unique (a face over a face).
+        l1 = lh1 / lh1[k1]
+        l1[k1] = lh1[k1]
+        polished, _ = self.scaled(a1, a2, l1, lh2 / lh1[k1], k1, "eq28-31")
+        if polished is not None and abs(polished.distance - dist * B1.L) <= self.tol * B1.L:
+            return polished
+        if not ok:
+            return self.failure(a1, a2, "the vertex quadratic program of two polytopes is inaccurate")
+        ratio1 = lh1 / lh1[k1]
+        l1 = ratio1.copy()
+        l1[k1] = lh1[k1] * B1.L
+        return self.result(a1, a2, l1, lh2 / lh1[k1], k1, ratio1, overlapping=False, depth=0.0,
+                           form="polytopes", sol=sol)
 
     def depth_start(self, y0):
         """Start of the depth problem. If the minimiser c of a single-function body (its centre,

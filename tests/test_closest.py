@@ -222,6 +222,68 @@ def test_close_pairs_of_intersections_match_slsqp(pair):
         assert res3.success and res3.overlapping and res3.depth > 0
 
 
+def _hull_body(planes):
+    P = np.asarray(planes, float)
+    return S.Intersection.polytope(P[:, :3], P[:, 3])
+
+
+def test_mesh_hull_over_ground_box_is_solved_exactly_and_at_once():
+    """The case that needed the vertex quadratic program of two polytopes (closest.py,
+    _Solver.polytopes): a UR10 link's simplified hull (86 planes) 1.5 mm above the ground box, as
+    comparisons.real_models seeded it. Newton on eqs (24)-(27) failed there after 1331 iterations
+    (33 s); the answer must match SLSQP, satisfy eqs (28)-(31), and take at most a polish."""
+    import json
+    import os
+    data = json.load(open(os.path.join(os.path.dirname(__file__), "data", "ur10_hull_over_ground.json")))
+    ground, link = _hull_body(data["body1_planes"]), _hull_body(data["body2_planes"])
+    pose1 = tuple(np.array(a) for a in data["pose1"])
+    pose2 = tuple(np.array(a) for a in data["pose2"])
+    res = check_against_oracle(ground, link, pose1, pose2)
+    assert res.distance == pytest.approx(1.5487251903947e-3, rel=RTOL_ORACLE)
+    assert res.iterations <= POLISH_ITERATIONS
+    # the link's lowest face is 0.0074 rad off the ground's: the closest point is its lowest
+    # vertex, which every closest pair shares
+    lowest = min((pose2[0] @ v + pose2[1] for v in link.face_points()), key=lambda x: x[2])
+    assert np.allclose(res.a2, lowest, atol=ATOL_CLOSED)
+
+
+POLISH_ITERATIONS = 3      # Newton iterations of eqs (28)-(31) from the vertex program's exact answer
+
+
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.35, -0.2), (0.55, 0.3)])
+def test_face_over_face_gives_the_closest_pair_under_the_centres(offset):
+    """A box 2 cm above a wider box, faces parallel: every point of the overlap of the two faces
+    is a closest point. closest_points returns the one under the midpoint of the centres when the
+    overlap holds it, else the middle of the overlap (a corner, the vertex program's raw answer,
+    is a poor start for a contact pressing on the whole face)."""
+    lower = S.Intersection.box([0.5, 0.3, 0.1])          # half extents
+    upper = S.Intersection.box([0.2, 0.2, 0.1])
+    gap = 0.02
+    rng = np.random.default_rng(RNG_SEED + 20)
+    yaw = rng.uniform(-math.pi, math.pi)
+    R2 = Rotation.from_euler("z", yaw).as_matrix()
+    pose1 = (np.eye(3), np.zeros(3))
+    pose2 = (R2, np.array([offset[0], offset[1], 0.2 + gap]))
+    res = check_against_oracle(lower, upper, pose1, pose2)
+    assert res.distance == pytest.approx(gap, abs=ATOL_CLOSED)
+    assert np.allclose(res.normal, [0.0, 0.0, 1.0], atol=ATOL_NORMAL)
+    middle = 0.5 * (pose1[1] + pose2[1])
+    local = R2[:2, :2].T @ (middle[:2] - pose2[1][:2])
+    if abs(middle[0]) <= 0.5 and abs(middle[1]) <= 0.3 and np.all(np.abs(local) <= 0.2):
+        expected = np.array([middle[0], middle[1], 0.1])
+    else:
+        # the overlap polygon of the two faces, independently: scipy's half-plane intersection
+        from scipy.spatial import HalfspaceIntersection
+        rows = [[1, 0, -0.5], [-1, 0, -0.5], [0, 1, -0.3], [0, -1, -0.3]]
+        for n in (R2[:2, 0], -R2[:2, 0], R2[:2, 1], -R2[:2, 1]):
+            rows.append([n[0], n[1], -(0.2 + float(n @ pose2[1][:2]))])
+        inner = np.array([0.45, 0.25])           # inside both faces
+        corners = HalfspaceIntersection(np.array(rows), inner).intersections
+        corners = np.unique(np.round(corners, 12), axis=0)
+        expected = np.r_[corners.mean(axis=0), 0.1]
+    assert np.allclose(res.a1, expected, atol=ATOL_CLOSED)
+
+
 @pytest.mark.parametrize("name", ["disc", "ellipse", "superellipse", "rectangle", "tooth"])
 def test_fingertip_against_2d_shapes(name):
     """[GI] eqs 58-61: the right gripper {y <= 0, x >= q4} against gear-like parts."""
