@@ -537,25 +537,26 @@ def _middle_of_closest_faces(V1, V2, a1, a2, B1, B2, centre):
 
 
 def _ordered(P):
-    """The convex polygon of 2D points P, counter-clockwise (a segment: its two ends)."""
-    c = P.mean(axis=0)
-    u = P - c
-    spread = float(np.max(np.linalg.norm(u, axis=1)))
-    if spread == 0.0:
-        return P[:1]
-    ang = np.arctan2(u[:, 1], u[:, 0])
-    Q = P[np.argsort(ang)]
-    # keep the hull's corners: drop points on or inside an edge (collinear, duplicates)
-    out = []
-    for q in np.r_[Q, Q[:2]]:
-        while len(out) >= 2 and _cross(out[-2], out[-1], q) <= 1e-12 * spread * spread:
-            out.pop()
-        out.append(q)
-    hull = np.array(out[1:-1] if len(out) > 3 else out)
-    if len(hull) < 3:           # collinear points: the extreme two along their direction
-        k = int(np.argmax(np.linalg.norm(u, axis=1)))
-        t = u @ u[k]
-        return np.array([P[int(np.argmin(t))], P[int(np.argmax(t))]])
+    """The convex hull of the 2D points P, counter-clockwise (Andrew's monotone chain); a
+    segment's two ends when the points are collinear, one point when they coincide."""
+    Q = np.unique(P, axis=0)                     # sorted by x, then y
+    if len(Q) <= 2:
+        return Q
+    spread = float(np.max(np.ptp(Q, axis=0)))
+    eps = 1e-12 * spread * spread
+
+    def chain(points):
+        out = []
+        for q in points:
+            while len(out) >= 2 and _cross(out[-2], out[-1], q) <= eps:
+                out.pop()
+            out.append(q)
+        return out
+
+    lower, upper = chain(Q), chain(Q[::-1])
+    hull = np.array(lower[:-1] + upper[:-1])
+    if len(hull) < 3:                            # collinear: the two ends
+        return np.array([Q[0], Q[-1]])
     return hull
 
 

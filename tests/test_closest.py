@@ -284,6 +284,50 @@ def test_face_over_face_gives_the_closest_pair_under_the_centres(offset):
     assert np.allclose(res.a1, expected, atol=ATOL_CLOSED)
 
 
+def test_face_overlap_polygons_match_scipy():
+    """The plane geometry of _middle_of_closest_faces: the hull of a face's points (with
+    duplicates and collinear points) against scipy's ConvexHull, and the clipped overlap of two
+    convex polygons (and of a segment by a polygon) against scipy's HalfspaceIntersection."""
+    from scipy.spatial import ConvexHull, HalfspaceIntersection
+    from implicit_contact.closest import _clip, _cross, _ordered
+    rng = np.random.default_rng(RNG_SEED + 21)
+    compared = 0
+    for trial in range(300):
+        P = rng.normal(size=(int(rng.integers(3, 12)), 2))
+        if trial % 3 == 0:
+            P = np.round(2.0 * P) / 2.0          # duplicates and collinear points
+        H = _ordered(np.r_[P, P[:2]])
+        ref = P[ConvexHull(P).vertices]
+        assert {tuple(np.round(h, 9)) for h in H} == {tuple(np.round(r, 9)) for r in ref}
+        assert all(_cross(H[i], H[(i + 1) % len(H)], H[(i + 2) % len(H)]) > 0 for i in range(len(H)))
+        Q = _ordered(rng.normal(size=(int(rng.integers(3, 9)), 2)) + rng.normal(scale=0.5, size=2))
+        region = _clip(H, Q)
+
+        def halfplanes(poly):
+            rows = []
+            for i in range(len(poly)):
+                a, b = poly[i], poly[(i + 1) % len(poly)]
+                n = np.array([b[1] - a[1], a[0] - b[0]])        # outward for counter-clockwise
+                rows.append([n[0], n[1], -float(n @ a)])
+            return rows
+
+        A = np.array(halfplanes(H) + halfplanes(Q))
+        # an interior point of the overlap, if any: Chebyshev centre by linear programming
+        from scipy.optimize import linprog
+        norms = np.linalg.norm(A[:, :2], axis=1)
+        lp = linprog([0, 0, -1], A_ub=np.c_[A[:, :2], norms], b_ub=-A[:, 2], bounds=[(None, None)] * 2 + [(0, None)])
+        if lp.status != 0 or lp.x[2] < 1e-6:            # no overlap with an interior
+            assert len(region) < 3 or ConvexHull(region).volume < 1e-9
+            continue
+        corners = HalfspaceIntersection(A, lp.x[:2]).intersections
+        assert {tuple(np.round(c, 7)) for c in corners} == {tuple(np.round(r, 7)) for r in region}
+        seg = _clip(np.array([H[0], H[len(H) // 2]]), Q)          # a segment clipped by Q
+        for x in seg:
+            assert np.all(A[len(H):, :2] @ x + A[len(H):, 2] <= 1e-9)
+        compared += 1
+    assert compared >= 50
+
+
 @pytest.mark.parametrize("name", ["disc", "ellipse", "superellipse", "rectangle", "tooth"])
 def test_fingertip_against_2d_shapes(name):
     """[GI] eqs 58-61: the right gripper {y <= 0, x >= q4} against gear-like parts."""
