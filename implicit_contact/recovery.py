@@ -5,7 +5,8 @@ solve the stepper asks the recoveries below, in this order, whether the solution
 corrected or the solve restarted; the first that applies arranges the next solve (a new start,
 or new rows) and the step is solved again, up to MAX_SOLVES solves. A converged solve that no
 recovery objects to is the step's answer; a failed solve that none can restart is a failed step
-(the stepper's failure policy then takes over: halving h, see ImplicitContactStepper.step).
+(the stepper's failure policy then takes over: halving h, see ImplicitContactStepper.step), and
+so is a step whose last allowed solve a recovery still wanted to restart (out_of_solves).
 
     recovery             applies to   the case that needed it                           guarding test
     friction_rows        any          a touching pair without friction rows, or a pair  tests/test_disc.py (slide to roll),
@@ -29,7 +30,7 @@ recovery objects to is the step's answer; a failed solve that none can restart i
     friction_homotopy    failed       every other recovery gave up and friction is      tests/test_face_campaign.py::test_
                                       strong against the motion: Newton heads for far-  friction_homotopy_...
                                       off impulses (a tumbling double pendulum, mu = 1,
-                                      a box dropped on a box at h = 1.35e-3); the step
+                                      a box dropped on a box at h = 1.65e-4); the step
                                       solved at 1/4, 1/2, 3/4 of mu starts the real one
 
 Each recovery is a function (stepper, attempt, problem, result) -> None (does not apply), RETRY
@@ -194,6 +195,20 @@ def restart_sliding(stepper, att: Attempt, problem, result):
         return None
     att.sliding = sorted(more)
     return RETRY
+
+
+def out_of_solves(result):
+    """The step's answer when every one of its MAX_SOLVES solves ended with a recovery asking for
+    another: a failure, whether or not the last solve converged (its rows were about to change,
+    and the attempt's pairs may no longer be the solved problem's). The case: example-robot-data's
+    icub at t = 0.927 s, where release_idle left pairs out after the last solve and the failure
+    report then indexed the attempt's shorter pair list with the problem's pairs (IndexError)."""
+    status = ncp.Status.MAX_ITERATIONS if result.success else result.status
+    return replace(result, status=status, message=f"{result.message} {OUT_OF_SOLVES}")
+
+
+OUT_OF_SOLVES = (f"the recoveries asked for more than {MAX_SOLVES} solves in this step (each changed the rows "
+                 "or the start, none gave an answer they accept)")
 
 
 def cold_start(stepper, att: Attempt, problem, result):

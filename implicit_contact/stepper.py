@@ -565,7 +565,7 @@ class ImplicitContactStepper:
         att = self._specs(pairs, state, joints)
         problem, result = self._solve_step(att, state)
         if not result.success:
-            return self._failure(problem, result, att.specs, t0, h)
+            return self._failure(problem, result, t0, h)
         contacts, new_last = self._solution(problem, result.x, att.specs)
         bad = self._check_solution(problem, result.x, contacts, att.specs)
         if att.released and not bad:
@@ -677,7 +677,7 @@ class ImplicitContactStepper:
             att.previous = None
             problem, result = self._solve_step(att, state)
         if not result.success:
-            return None, self._failure(problem, result, att.specs, t0, h)
+            return None, self._failure(problem, result, t0, h)
         contacts, memory = self._solution(problem, result.x, att.specs)
         bad = self._check_solution(problem, result.x, contacts, att.specs, energy=False)
         if bad:
@@ -1365,6 +1365,8 @@ class ImplicitContactStepper:
                 if outcome is not None:
                     result = outcome          # a recovery turned the solve into a failure
                 break
+        else:
+            result = recovery.out_of_solves(result)
         return problem, result
 
     def _friction_stages(self, att, fractions):
@@ -1884,8 +1886,10 @@ class ImplicitContactStepper:
                     scale += self._masses[b.index] * g * o.radius
         return gain, scale
 
-    def _failure(self, problem, result, specs, t0, h) -> StepReport:
-        """A failed step's report: the pair whose rows are worst, the status, the likely cause."""
+    def _failure(self, problem, result, t0, h) -> StepReport:
+        """A failed step's report: the pair whose rows are worst (of the problem solved last: a
+        recovery may have changed the attempt's pairs since), the status, the likely cause."""
+        specs = problem.specs
         try:
             F = problem.fun(result.x)
             nat = np.abs(result.x - np.clip(result.x - F, problem.lower, problem.upper))
@@ -1897,7 +1901,9 @@ class ImplicitContactStepper:
             r = float(np.nanmax(nat[cols])) if np.any(np.isfinite(nat[cols])) else math.inf
             if r > worst:
                 pair_name, worst = f"{specs[k].objects[0].label} / {specs[k].objects[1].label}", r
-        if result.status is ncp.Status.NOT_FINITE:
+        if result.message.endswith(recovery.OUT_OF_SOLVES):
+            cause = recovery.OUT_OF_SOLVES
+        elif result.status is ncp.Status.NOT_FINITE:
             cause = ("the rows are undefined at an iterate (degenerate geometry, e.g. a contact normal "
                      "along its tangent axis or a point at a shape's centre)")
         else:

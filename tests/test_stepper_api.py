@@ -167,6 +167,35 @@ def test_failure_retry_raises_after_its_bounded_halvings_and_keeps_the_world():
     assert _same(before, _state(world))
 
 
+def test_a_step_whose_recoveries_outlast_its_solves_fails_and_keeps_the_world(monkeypatch):
+    """recovery.out_of_solves: when a recovery still asks for another solve after the last of
+    MAX_SOLVES, the step fails (whether or not that solve converged) and names a pair of the
+    problem actually solved. Here a recovery asks every time, and on the last solve also drops the
+    attempt's pairs, as release_idle did on icub at t = 0.927 s (comparisons.real_models), where
+    the failure report then raised IndexError."""
+    from implicit_contact import recovery
+    world = dart.simulation.World()
+    world.setTimeStep(0.01)
+    _ground3d(world)
+    _free_ball(world, z=0.5)                 # resting on the ground: a converged contact step
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise")
+    calls = []
+
+    def greedy(stepper_, att, problem, result):
+        calls.append(result.success)
+        if att.index == recovery.MAX_SOLVES - 1:
+            att.specs, att.pairs = [], []
+        return recovery.RETRY
+
+    monkeypatch.setattr(recovery, "RECOVERIES", (greedy,) + recovery.RECOVERIES)
+    before = _state(world)
+    with pytest.raises(ic.StepFailure, match=rf"ball.*ground|ground.*ball") as info:
+        stepper.step()
+    assert f"more than {recovery.MAX_SOLVES} solves" in str(info.value)
+    assert len(calls) == recovery.MAX_SOLVES and calls[-1]      # the last solve had converged
+    assert _same(before, _state(world))
+
+
 def test_retry_takes_substeps_that_add_up_to_h():
     """With a solver that fails on the full step but not on halves, retry advances by exactly h."""
     world = disc_rolling.build_world(0.01)
