@@ -189,7 +189,7 @@ def test_a_step_whose_recoveries_outlast_its_solves_fails_and_keeps_the_world(mo
 
     monkeypatch.setattr(recovery, "RECOVERIES", (greedy,) + recovery.RECOVERIES)
     before = _state(world)
-    with pytest.raises(ic.StepFailure, match=rf"ball.*ground|ground.*ball") as info:
+    with pytest.raises(ic.StepFailure, match=r"ball.*ground|ground.*ball") as info:
         stepper.step()
     assert f"more than {recovery.MAX_SOLVES} solves" in str(info.value)
     assert len(calls) == recovery.MAX_SOLVES and calls[-1]      # the last solve had converged
