@@ -839,9 +839,7 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
             if isinstance(H, _SparsePattern):
                 H = H.matrix()
             if sp.issparse(H):
-                HtH = (H.T @ H).tocsr()
-                mu = buf.fbuf[F_MU] + 16.0 * np.finfo(float).eps * float(np.abs(HtH.diagonal()).max())
-                d = _sparse_solve(HtH + sp.diags(np.full(n, mu), format="csr"), -buf.g)
+                d = _sparse_lm(H.tocsr(), buf.g, buf.fbuf[F_MU])
                 buf.info[I_SINGULAR] = d is None
                 if d is not None:
                     buf.d[:] = d
@@ -907,6 +905,31 @@ class _SparsePattern:
             n = len(self.indptr) - 1
             self.H = sp.csr_matrix((self.data, self.indices, self.indptr), shape=(n, n))
         return self.H
+
+
+def _sparse_lm(H, g, mu0):
+    """The Levenberg-Marquardt step of dense_lm on a sparse H: (H^T H + mu I) d = -g with
+    mu = mu0 + 16 eps max_j |H e_j|^2, solved as the augmented system
+
+        [ I    -H  ] [r]   [ 0]
+        [ H^T  mu I] [d] = [-g]      (r = H d),
+
+    whose LU needs no product H^T H: a skeleton's dense rows (its mass matrix couples every
+    contact on it) make that product nearly dense. Measured on example-robot-data's alex_nub_hands
+    at t = 0.141 s (~1700 Newton and 600 LM steps): forming H^T H took 18 of the step's 34 s."""
+    n = H.shape[0]
+    mu = mu0 + 16.0 * np.finfo(float).eps * float(np.max(np.bincount(H.indices, weights=H.data * H.data,
+                                                                        minlength=n), initial=0.0))
+    eye = sp.identity(n, format="csr")
+    K = sp.bmat([[eye, -H], [H.T, mu * eye]], format="csc")
+    try:
+        x = spla.splu(K).solve(np.concatenate([np.zeros(n), -g]))
+    except RuntimeError:  # "Factor is exactly singular"
+        return None
+    d = x[n:]
+    if not math.isfinite(d @ d):
+        return None
+    return d
 
 
 def _sparse_solve(H, rhs):

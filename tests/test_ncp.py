@@ -236,6 +236,29 @@ def test_sparse_jacobian_gives_the_same_answer_as_dense():
             np.testing.assert_allclose(sparse.x, dense.x, atol=ATOL_SPARSE_DENSE)
 
 
+def test_sparse_levenberg_marquardt_step_matches_the_dense_one():
+    """ncp._sparse_lm solves (H^T H + mu I) d = -g through the augmented system [[I, -H], [H^T, mu I]]
+    (no product H^T H): the same step as dense_lm's normal equations, on a random sparse H with a
+    dense block (as a skeleton's rows make) and on a rank-deficient H, where mu alone regularises."""
+    from implicit_contact.ncp import _sparse_lm, dense_lm
+    rng = np.random.default_rng(11)
+    n = 60
+    H = sp.random(n, n, density=0.05, random_state=3).toarray() + np.eye(n)
+    H[:8, :] += rng.normal(size=(8, n))                  # dense rows
+    rank_deficient = H.copy()
+    rank_deficient[:, 5] = rank_deficient[:, 4]          # two equal columns
+    for A, mu in ((H, 1e-6), (rank_deficient, 1e-8)):
+        g = A.T @ rng.normal(size=n)
+        dense = np.empty(n)
+        assert dense_lm(A.copy(), g, mu, dense)
+        sparse = _sparse_lm(sp.csr_matrix(A), g, mu)
+        assert sparse is not None
+        np.testing.assert_allclose(sparse, dense, rtol=RTOL_LM_STEP, atol=RTOL_LM_STEP * np.abs(dense).max())
+
+
+RTOL_LM_STEP = 1e-7     # the two factorisations of an LM step (normal equations squares the condition number)
+
+
 def test_stable_fischer_burmeister_evaluation():
     """One NCP row with x = 1 and F = 1e-17: phi = 2ab / (a + b + r) = 1e-17; the textbook
     a + b - sqrt(a^2 + b^2) rounds to 0 (and the penalty term is (1 - lam) 1e-17)."""
