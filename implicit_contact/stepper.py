@@ -1366,7 +1366,7 @@ class ImplicitContactStepper:
                     result = outcome          # a recovery turned the solve into a failure
                 break
         else:
-            result = recovery.out_of_solves(result)
+            result = recovery.out_of_solves(att, problem, result)
         return problem, result
 
     def _friction_stages(self, att, fractions):
