@@ -141,13 +141,37 @@ def test_separation_bound_is_the_distance_along_the_normal_and_below_it_elsewher
     assert none == -math.inf and n is None
 
 
-# campaign runs that raise StepFailure once every other recovery has given up (200 iterations at
+# campaign runs that raised StepFailure with an impulse unit of m h g alone (at 6a44860): small-h
+# runs whose impacts were 1e4-1e5 such units, where Newton at h / 16 stalled with friction impulses
+# of 2e4 units (a box dropped on a box at h = 1.1e-4, a prism landing that failed on its first
+# step at h = 1.3e-4 after 57 s, a prism dropped on a box)
+ONCE_FAILED_SMALL_UNITS = [
+    (1124697384, "stack", "box", 0.00010662172890095409),
+    (463863240, "land", "prism", 0.00012941848139385597),
+    (104199519, "stack", "prism", 0.00014520074463784935),
+]
+
+
+@pytest.mark.parametrize("config", ONCE_FAILED_SMALL_UNITS, ids=lambda c: f"{c[1]}-{c[2]}-{c[0]}")
+def test_small_steps_with_impacts_complete_with_the_impulse_unit_floor(config):
+    """stepper.IMPULSE_SPEED: a pair's impulse unit is at least m * 1 cm/s. The runs complete,
+    coal finds no pair penetrating beyond the contact tolerance after any step, and no step gains
+    energy beyond the free-flight step's."""
+    rec = fc.run(fc.Config(*config, budget=120.0))
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"]
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+    assert rec["energy_excess_rel"] <= fc.ENERGY_TOL
+
+
+# campaign runs that raised StepFailure once every other recovery had given up (200 iterations at
 # h / 16): a box dropped onto a welded box and a cylinder landing; both complete once the step is
-# first solved at fractions of mu, and fail without that (checked when they were chosen). The box
-# stack that stood here first (2940199841, h = 1.35e-3) turned out to complete or fail with the
-# round-off of the closest-point seeds (evaluating a polytope's planes as one product instead of
-# one by one flipped it); this one completes with the vertex program's seeds and with their raw
-# corners alike (closest.py, _middle_of_closest_faces).
+# first solved at fractions of mu, and fail without that (checked when they were chosen). Both are
+# small-h runs, where an impulse unit of m h g alone made the impacts 1e4-1e5 units: with the floor
+# stepper.IMPULSE_SPEED they complete without the homotopy, so the floor is taken off here, which
+# restores the case. The box stack that stood here first (2940199841, h = 1.35e-3) completed or
+# failed with the round-off of the closest-point seeds; this one completes with the vertex
+# program's seeds and with their raw corners alike (closest.py, _middle_of_closest_faces).
 ONCE_FAILED_STRONG_FRICTION = [
     (1472751432, "stack", "box", 0.00016522812700132253),
     (3859907210, "land", "cylinder", 0.0001419246419164841),
@@ -155,10 +179,11 @@ ONCE_FAILED_STRONG_FRICTION = [
 
 
 @pytest.mark.parametrize("config", ONCE_FAILED_STRONG_FRICTION, ids=lambda c: f"{c[2]}-{c[0]}")
-def test_friction_homotopy_starts_steps_newton_could_not(config):
+def test_friction_homotopy_starts_steps_newton_could_not(config, monkeypatch):
     """recovery.friction_homotopy: the run completes, its stages were used, and coal finds no pair
     penetrating beyond the contact tolerance after any step, and no step gains energy beyond the
     free-flight step's."""
+    monkeypatch.setattr(ic.stepper, "IMPULSE_SPEED", 0.0)
     from implicit_contact import recovery
     used = []
     stages = ic.ImplicitContactStepper._friction_stages
