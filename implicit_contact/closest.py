@@ -504,8 +504,12 @@ def _middle_of_closest_faces(V1, V2, a1, a2, B1, B2, centre):
     d = a2 - a1
     n = d / np.linalg.norm(d)
     dim = len(n)
+
+    def on_both(x):
+        return float(np.max(B1.values(x))) <= POLYTOPE_ACTIVE and float(np.max(B2.values(x + d))) <= POLYTOPE_ACTIVE
+
     x = centre - float((centre - a1) @ n) * n
-    if float(np.max(B1.values(x))) <= POLYTOPE_ACTIVE and float(np.max(B2.values(x + d))) <= POLYTOPE_ACTIVE:
+    if on_both(x):
         return x, x + d
     F1 = V1[V1 @ n >= float(np.max(V1 @ n)) - POLYTOPE_ACTIVE]
     F2 = V2[V2 @ n <= float(np.min(V2 @ n)) + POLYTOPE_ACTIVE] - d
@@ -531,9 +535,7 @@ def _middle_of_closest_faces(V1, V2, a1, a2, B1, B2, centre):
             return a1, a2
         c = region.mean(axis=0)
         x = a1 + E.T @ (c - E @ a1)
-    if float(np.max(B1.values(x))) > POLYTOPE_ACTIVE or float(np.max(B2.values(x + d))) > POLYTOPE_ACTIVE:
-        return a1, a2
-    return x, x + d
+    return (x, x + d) if on_both(x) else (a1, a2)
 
 
 def _ordered(P):
@@ -881,15 +883,14 @@ class _Solver:
         # In (24)-(27) the multipliers are proportional to the distance, so their ratios lose
         # accuracy as the polytopes close in: polish with (28)-(31) from here, as kkt does; the
         # polish may fail where the closest points are not unique (a face over a face).
-        l1 = lh1 / lh1[k1]
+        ratio1 = lh1 / lh1[k1]
+        l1 = ratio1.copy()
         l1[k1] = lh1[k1]
         polished, _ = self.scaled(a1, a2, l1, lh2 / lh1[k1], k1, "eq28-31")
         if polished is not None and abs(polished.distance - dist * B1.L) <= self.tol * B1.L:
             return polished
         if not ok:
             return self.failure(a1, a2, "the vertex quadratic program of two polytopes is inaccurate")
-        ratio1 = lh1 / lh1[k1]
-        l1 = ratio1.copy()
         l1[k1] = lh1[k1] * B1.L
         return self.result(a1, a2, l1, lh2 / lh1[k1], k1, ratio1, overlapping=False, depth=0.0,
                            form="polytopes", sol=sol)

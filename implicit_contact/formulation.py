@@ -18,9 +18,9 @@ q^{l+1} = q^l (+) h v^{l+1}, written exactly as DART integrates:
   is this with J = I6); for a chain it differs from DART's joint-space update q+ = q (+) h v
   (which the stepper uses to write back) by O(h^2 |v|^2).
 
-Scaling. Impulses are unknowns in units of s_p = h m g_ref (a pair's weight impulse), the
-Newton-Euler rows are divided by diag(M) and the position-level rows ((15), (17)-(19), (35),
-(55)) by h, so that they read as velocities; the friction rows are in velocity units by
+Scaling. Impulses are unknowns in units of s_p = m max(h g_ref, IMPULSE_SPEED) (a pair's weight
+impulse, at least m * 1 cm/s: stepper._pair_spec), the Newton-Euler rows are divided by diag(M)
+and the position-level rows ((15), (17)-(19), (35), (55)) by h, so that they read as velocities; the friction rows are in velocity units by
 construction: a natural-residual tolerance then means about the same on every row.
 
 Jacobian storage. Below SPARSE_MIN_UNKNOWNS unknowns (``jacobian="auto"``) J is a dense (n, n)

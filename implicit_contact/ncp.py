@@ -921,15 +921,8 @@ def _sparse_lm(H, g, mu0):
     mu = mu0 + 16.0 * np.finfo(float).eps * float(np.max(np.bincount(H.indices, weights=H.data * H.data,
                                                                         minlength=n), initial=0.0))
     eye = sp.identity(n, format="csr")
-    K = sp.bmat([[eye, -H], [H.T, mu * eye]], format="csc")
-    try:
-        x = spla.splu(K).solve(np.concatenate([np.zeros(n), -g]))
-    except RuntimeError:  # "Factor is exactly singular"
-        return None
-    d = x[n:]
-    if not math.isfinite(d @ d):
-        return None
-    return d
+    x = _sparse_solve(sp.bmat([[eye, -H], [H.T, mu * eye]], format="csc"), np.concatenate([np.zeros(n), -g]))
+    return None if x is None else x[n:]
 
 
 def _sparse_solve(H, rhs):

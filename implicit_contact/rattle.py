@@ -7,7 +7,7 @@ Leine, Nonlinear Analysis: Hybrid Systems 52, 2024) splits a step into two impul
 applied in the geometry at l, the second in the geometry at l+1, with the positions moved by the
 velocity in between. Written for this package's bodies (q, v, M, f as DART has them; W the
 contact Jacobian of a pair's frame n, t, o and its torsion row; R1 and P in units of the pair's
-s_p = h m g_ref, as [GI]'s unknowns), one step of h is
+s_p = m max(h g_ref, IMPULSE_SPEED), as [GI]'s unknowns), one step of h is
 
 stage 1, one geometrically implicit MCP with [GI]'s unknowns (u in place of v^{l+1}):
 

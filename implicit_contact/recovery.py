@@ -53,7 +53,7 @@ from .rows import contact as rc
 
 MAX_SOLVES = 8      # solves per step (the recoveries below restart at most this often in all)
 RETRY = "retry"
-TOUCH = 1e-9        # scaled normal impulse (units of h m g) above which a pair counts as touching
+TOUCH = 1e-9        # scaled normal impulse (units of the pair's s_p) above which a pair counts as touching
 
 
 @dataclass

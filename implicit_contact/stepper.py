@@ -176,7 +176,7 @@ _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chose
 # slides, a landing; 21 % of its runs), where Newton at h / 16 met impacts of 1e4-1e5 units and
 # stalled with friction impulses of 2e4 units; with this floor 7 of the 11 complete
 IMPULSE_SPEED = 0.01
-_TOUCH = recovery.TOUCH   # scaled normal impulse (units of h m g) above which a pair counts as touching
+_TOUCH = recovery.TOUCH   # scaled normal impulse (units of the pair's s_p) above which a pair counts as touching
 # order 2's second stage solves to this fraction of the solver's tolerance: its friction rows are
 # in units of e^2 mu P_n times a slip (P_n ~ 1), so the default 1e-10 left a box's spin at 2e-9
 # rad/s after it stuck (tests/test_face_contact.py's spin-down); the rows are linear but for the

@@ -84,9 +84,10 @@ become their unknowns through T (a = a0 + T s). A pair's rows and its bodies' im
 form one dense local block over [v of body 1, v of body 2, the pair's block] (rows and columns
 alike), which assemble.py adds into J.
 
-Scaling (applied by assemble.py): impulses are unknowns in units of s_p = h m g_ref, the
-Newton-Euler rows are divided by diag(M) and the position-level rows ((15), (17)-(19), (35),
-(55)) by h, so that every row reads about as a velocity.
+Scaling (applied by assemble.py): impulses are unknowns in units of
+s_p = m max(h g_ref, IMPULSE_SPEED) (stepper._pair_spec), the Newton-Euler rows are divided by
+diag(M) and the position-level rows ((15), (17)-(19), (35), (55)) by h, so that every row reads
+about as a velocity.
 
 2D pairs are 3D pairs in the plane z = 0 (bodies rotating about z): their vectors have zero z
 and only the first d rows of (15), (16) are written.
