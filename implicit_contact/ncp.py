@@ -171,6 +171,11 @@ class SolverOptions:
         infinite merit and the step is halved (the rows are undefined far from the last iterate,
         not at it); False stops with NOT_FINITE there. A non-finite start or Jacobian always
         stops.
+    watch: the iteration at which a stalled solve stops, >= 0 (0: never): if the best merit of its
+        last STALL_WINDOW iterations is above STALL_GAIN times the best before them, the solve
+        stops there with status MAX_ITERATIONS (its message says it stalled), so that a caller with
+        a better start for the stalled case (the stepper's recovery.restart_sliding) need not
+        wait for max_iterations; otherwise it goes on, the same iterations as without the watch.
     """
 
     tol: float = 1e-10
@@ -184,6 +189,7 @@ class SolverOptions:
     lm_factor: float = 1e-2
     fb_lambda: float = 0.9
     shorten_nonfinite: bool = False
+    watch: int = 0
 
     def __post_init__(self):
         for name in ("tol", "armijo", "min_newton_step", "min_step", "descent_rho",
@@ -192,7 +198,7 @@ class SolverOptions:
             if isinstance(value, bool) or not isinstance(value, (int, float)) \
                     or not math.isfinite(value):
                 raise ValueError(f"SolverOptions.{name} must be a finite number, got {value!r}")
-        for name in ("max_iterations", "nonmonotone_memory"):
+        for name in ("max_iterations", "nonmonotone_memory", "watch"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise ValueError(f"SolverOptions.{name} must be an integer, got {value!r}")
@@ -205,6 +211,8 @@ class SolverOptions:
                              f"got {self.max_iterations}")
         if not 0 < self.armijo < 0.5:
             raise ValueError(f"SolverOptions.armijo must lie in (0, 0.5), got {self.armijo}")
+        if self.watch < 0:
+            raise ValueError(f"SolverOptions.watch must be >= 0 (0: never), got {self.watch}")
         if self.nonmonotone_memory < 1:
             raise ValueError("SolverOptions.nonmonotone_memory must be >= 1 (1 is monotone), "
                              f"got {self.nonmonotone_memory}")
@@ -282,11 +290,14 @@ NINFO = 7
 F_RESIDUAL, F_MU, F_HGSQ, F_PSI = 0, 1, 2, 3
 NFBUF = 4
 # options (float64) entries
-(O_TOL, O_MAXIT, O_ARMIJO, O_MEMORY, O_MIN_NEWTON, O_MIN_STEP, O_RHO, O_POWER, O_LM, O_LAMBDA, O_SHORTEN) = range(11)
-NOPT = 11
+(O_TOL, O_MAXIT, O_ARMIJO, O_MEMORY, O_MIN_NEWTON, O_MIN_STEP, O_RHO, O_POWER, O_LM, O_LAMBDA, O_SHORTEN,
+ O_WATCH) = range(12)
+NOPT = 12
 # status codes (Status below) and why a NOT_FINITE / failed stop happened
 S_CONVERGED, S_MAX_ITERATIONS, S_LINE_SEARCH_FAILED, S_SINGULAR, S_NOT_FINITE = 0, 1, 2, 3, 4
-WHY_START, WHY_TRIAL, WHY_JAC = 1, 2, 3
+WHY_START, WHY_TRIAL, WHY_JAC, WHY_STALLED = 1, 2, 3, 4
+STALL_WINDOW = 5        # iterations (SolverOptions.watch)
+STALL_GAIN = 0.5       # a best merit that fell by less than this factor over the window has stalled
 STEP_NEWTON, STEP_LM, STEP_GRADIENT = 1, 2, 3
 
 
@@ -297,6 +308,7 @@ def options_array(options: SolverOptions) -> np.ndarray:
     o[O_RHO], o[O_POWER], o[O_LM], o[O_LAMBDA] = (options.descent_rho, options.descent_power, options.lm_factor,
                                                   options.fb_lambda)
     o[O_SHORTEN] = 1.0 if options.shorten_nonfinite else 0.0
+    o[O_WATCH] = options.watch
     return o
 
 
@@ -375,6 +387,22 @@ def _natural_residual(x, F, lo, hi):
 
 
 @kernel
+def _stalled(history, nhist):
+    """Whether the best of the last STALL_WINDOW merits in history[:nhist] is above STALL_GAIN
+    times the best before them (Newton in its quadratic basin gains orders of magnitude an
+    iteration)."""
+    if nhist <= STALL_WINDOW:
+        return False
+    before = history[0]
+    for k in range(nhist - STALL_WINDOW):
+        before = min(before, history[k])
+    last = history[nhist - STALL_WINDOW]
+    for k in range(nhist - STALL_WINDOW, nhist):
+        last = min(last, history[k])
+    return last > STALL_GAIN * before
+
+
+@kernel
 def _finite(v):
     acc = 0.0
     for i in range(v.shape[0]):
@@ -398,6 +426,7 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     memory, min_newton, min_step = int(opt[O_MEMORY]), opt[O_MIN_NEWTON], opt[O_MIN_STEP]
     rho, power, lm_factor, lam = opt[O_RHO], opt[O_POWER], opt[O_LM], opt[O_LAMBDA]
     shorten = opt[O_SHORTEN] != 0.0
+    watch = int(opt[O_WATCH])
     lo0, hi0, lam_in, w_in, lam_out, w_out, gd = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     two = _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out)
     for i in range(n):
@@ -406,6 +435,7 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     info[I_NFEV] = 1
     info[I_NJEV] = 0
     info[I_ITER] = 0
+    info[I_WHY] = 0
     for i in range(n):
         x[i] = xt[i]
         F[i] = Ft[i]
@@ -426,6 +456,9 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
             return
         if info[I_ITER] >= maxit:
             info[I_STATUS] = S_MAX_ITERATIONS
+            return
+        if watch > 0 and info[I_ITER] == watch and _stalled(history, nhist):
+            info[I_STATUS], info[I_WHY] = S_MAX_ITERATIONS, WHY_STALLED
             return
         info[I_BAD] = 0
         yield REQ_J
@@ -728,6 +761,9 @@ def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
     why = int(info[I_WHY])
     if status is Status.CONVERGED:
         message = f"Converged in {iterations} iterations: natural residual {residual:.3g} <= tol {tol:.3g}."
+    elif status is Status.MAX_ITERATIONS and why == WHY_STALLED:
+        message = (f"Stopped after {iterations} iterations (watch): stalled, natural residual "
+                   f"{residual:.3g} > tol {tol:.3g}.")
     elif status is Status.MAX_ITERATIONS:
         message = (f"Stopped after {iterations} iterations (max_iterations) with natural residual "
                    f"{residual:.3g} > tol {tol:.3g}.")

@@ -263,6 +263,7 @@ class ImplicitContactStepper:
         self._stage2_solver = None  # (options.solver, order 2's stage-2 options: _stage2_step)
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
+        self._variants = {}        # solver options with another iteration limit or watch (_variant)
         self._retrying = False
         self._budget = None        # the budget of the step under way (step; budget.py)
         self._order1_fallback = False   # order 2 taking one step as [GI]'s (_order1_step)
@@ -1098,7 +1099,7 @@ class ImplicitContactStepper:
         read; kin: the kernel does the kinematics (False: _read did). (code, the next memory's
         pair parameters, solution and reports, the options)."""
         w, problem, memory = self._world, ctx.problem, self._last
-        opts = self._retry_options() if self._retrying else self.options.solver
+        opts = self._solver_options()
         if self._budget is not None:
             opts = self._budget.admit(opts)
         if ctx.solver is None or ctx.solver[0] is not opts:
@@ -1361,7 +1362,7 @@ class ImplicitContactStepper:
             else:
                 z0 = recovery._transfer(*att.previous, problem, att.sliding)
             att.z0 = z0
-            result = self._solve(problem, z0)
+            result = recovery.watched_solve(self, att, problem, z0)
             for strategy in recovery.RECOVERIES:
                 outcome = strategy(self, att, problem, result)
                 if outcome is not None:
@@ -1528,6 +1529,17 @@ class ImplicitContactStepper:
         if self._budget is not None:
             self._budget.admit(None)
 
+    def _variant(self, opts, limit, watch) -> ncp.SolverOptions:
+        """opts with max_iterations = limit and the given watch, kept per (opts, limit, watch):
+        step_solver keeps a solve's buffers per options object."""
+        key = (id(opts), limit, watch)
+        held = self._variants.get(key)
+        if held is None or held[0] is not opts:
+            if len(self._variants) > 64:
+                self._variants.clear()
+            held = self._variants[key] = (opts, replace(opts, max_iterations=limit, watch=watch))
+        return held[1]
+
     def _retry_options(self) -> ncp.SolverOptions:
         """The solver options of a retried step's substeps: they are the hard ones (measured: a box
         slapping flat onto the ground converges in ~100 LM iterations), so a larger budget."""
@@ -1536,9 +1548,16 @@ class ImplicitContactStepper:
             self._retry_solver = replace(opts, max_iterations=self.options.retry_iterations_factor * opts.max_iterations)
         return self._retry_solver
 
-    def _solve(self, problem, z0, sync=True):
-        """step_solver.solve (compiled, polished; see there), with the retry policy's budget."""
-        opts = self._retry_options() if self._retrying else self.options.solver
+    def _solver_options(self) -> ncp.SolverOptions:
+        """The solver options of this step's solves: the retry policy's for a retried step's substeps."""
+        return self._retry_options() if self._retrying else self.options.solver
+
+    def _solve(self, problem, z0, sync=True, limit=None, watch=0):
+        """step_solver.solve (compiled, polished; see there), with the retry policy's budget;
+        limit: at most this many iterations; watch: ncp.SolverOptions.watch (recovery.watched_solve)."""
+        opts = self._solver_options()
+        if limit is not None or watch:
+            opts = self._variant(opts, opts.max_iterations if limit is None else limit, watch)
         budget = self._budget
         if budget is not None:
             opts = budget.admit(opts)

@@ -225,6 +225,36 @@ def test_inconsistent_singular_system_returns_a_status():
     assert r.status in (Status.SINGULAR, Status.LINE_SEARCH_FAILED, Status.MAX_ITERATIONS)
 
 
+def test_watch_stops_a_stalled_solve_at_its_iteration():
+    """SolverOptions.watch: the inconsistent system's merit stays at 1 from its third iteration;
+    watched at 6 the solve stops there (MAX_ITERATIONS, the message says it stalled) instead of
+    going on to its own stop at 7."""
+    fun, jac = _lcp([[1.0, 1.0], [1.0, 1.0]], [-1.0, 1.0])
+    unwatched = solve_mcp(fun, jac, [0.3, 0.2], -np.inf, np.inf)
+    watched = solve_mcp(fun, jac, [0.3, 0.2], -np.inf, np.inf, SolverOptions(watch=6))
+    assert unwatched.iterations > 6
+    assert watched.status is Status.MAX_ITERATIONS and watched.iterations == 6 and "stalled" in watched.message
+    np.testing.assert_array_equal(watched.merit_history, unwatched.merit_history[:7])
+
+
+@pytest.mark.parametrize("problem", PROBLEMS, ids=lambda p: p.name)
+def test_watch_changes_nothing_but_where_a_stalled_solve_stops(problem):
+    """Watched at 5, every start of the problem table is solved exactly as without the watch
+    (the same iterations and iterate), or stops at 5 with a best merit over its last
+    ncp.STALL_WINDOW iterations above ncp.STALL_GAIN times the best before them."""
+    from implicit_contact import ncp
+    for label, x0 in problem.starts:
+        plain = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper)
+        watched = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper, SolverOptions(watch=5))
+        if watched.iterations == plain.iterations and watched.status is plain.status:
+            np.testing.assert_array_equal(watched.x, plain.x)
+            continue
+        assert watched.status is Status.MAX_ITERATIONS and watched.iterations == 5, label
+        h = np.asarray(watched.merit_history)
+        assert np.min(h[-ncp.STALL_WINDOW:]) > ncp.STALL_GAIN * np.min(h[:-ncp.STALL_WINDOW]), label
+        np.testing.assert_array_equal(h, plain.merit_history[:6])
+
+
 def test_sparse_jacobian_gives_the_same_answer_as_dense():
     for name in ("kojima_shindo", "box_lcp_mixed", "random_lcp_20_s12", "mathiesen"):
         problem = next(p for p in PROBLEMS if p.name == name)
@@ -318,7 +348,7 @@ def test_malformed_input_raises_value_error(kwargs, match):
                                     dict(nonmonotone_memory=0), dict(min_newton_step=2.0),
                                     dict(min_step=1.0), dict(descent_power=2.0),
                                     dict(lm_factor=0.0), dict(fb_lambda=0.0),
-                                    dict(fb_lambda=1.5)])
+                                    dict(fb_lambda=1.5), dict(watch=-1), dict(watch=1.5)])
 def test_invalid_options_raise_value_error(kwargs):
     with pytest.raises(ValueError, match="SolverOptions"):
         SolverOptions(**kwargs)

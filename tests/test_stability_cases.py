@@ -52,3 +52,42 @@ def test_ten_bodies_dropped_into_a_box_get_through_the_first_wall_contacts():
         report = stepper.step()
         assert all(c.gap >= -PEN_TOL for c in report.contacts)
     assert time.perf_counter() - start < 60.0      # a stalled solve takes minutes
+
+
+def _ten_bodies(steps, watch, monkeypatch):
+    """comparisons.stability's 10 bodies for `steps` steps with recovery.SLIDING_WATCH = watch:
+    (Newton iterations spent over all solves, every skeleton's end positions, solves ended early)."""
+    from comparisons.stability import IMPLICIT, many_bodies_world
+    from implicit_contact import recovery
+
+    monkeypatch.setattr(recovery, "SLIDING_WATCH", watch)
+    ended = []
+    watched = recovery.watched_solve
+
+    def counting(stepper, att, problem, z0):
+        result = watched(stepper, att, problem, z0)
+        if att.added and not result.success and result.iterations == watch:
+            ended.append(result)
+        return result
+
+    monkeypatch.setattr(recovery, "watched_solve", counting)
+    world = many_bodies_world(10, 0.01, IMPLICIT)
+    stepper = ic.ImplicitContactStepper(world)
+    spent = sum(stepper.step().spent for _ in range(steps))
+    q = np.concatenate([np.asarray(world.getSkeleton(i).getPositions()) for i in range(world.getNumSkeletons())])
+    return spent, q, len(ended)
+
+
+SAME_END = 1e-9      # [m, rad] the same MCP answers, reached along other solves: round-off apart
+
+
+def test_watched_resolve_hands_a_stalled_sticking_start_to_restart_sliding_sooner(monkeypatch):
+    """recovery.watched_solve. In the 10 bodies' first 0.2 s, re-solves after friction rows were
+    added (started sticking) stall in the FB valley until restart_sliding starts them sliding.
+    Watched after 15 iterations they end there: the same trajectory (restart_sliding then finds the
+    same answers) for fewer Newton iterations; without the watch (0) none ends early."""
+    spent_off, q_off, ended_off = _ten_bodies(20, 0, monkeypatch)
+    spent_on, q_on, ended_on = _ten_bodies(20, 15, monkeypatch)
+    assert ended_off == 0 and ended_on >= 1
+    assert np.max(np.abs(q_on - q_off)) <= SAME_END
+    assert spent_on < spent_off

@@ -147,10 +147,10 @@ def test_jacobian_matches_differences():
     captured = {}
     original = st._solve
 
-    def spy(problem, z0):
+    def spy(problem, z0, *args, **kwargs):
         captured.setdefault("problem", problem)
         captured.setdefault("z0", z0)
-        return original(problem, z0)
+        return original(problem, z0, *args, **kwargs)
     st._solve = spy
     st.step()
     problem = captured["problem"]
