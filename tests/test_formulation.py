@@ -223,3 +223,31 @@ def test_transfer_maps_a_pair_whose_bodies_were_swapped_since_the_old_solve():
     np.testing.assert_array_equal(after.l2, before.l1)
     assert after.p_n == before.p_n
     np.testing.assert_array_equal(z[new.layout.v_index[0]], x[old.layout.v_index[0]])
+
+
+def test_cone_check_refuses_what_the_solver_tolerance_does_not_explain():
+    """CONE (rows/checks.py) against the cone row (22), which is quadratic in the scaled impulses:
+    a converged solve (natural residual <= tol) may leave the friction up to sqrt(tol) outside a
+    cone of p_n = 0, and up to ~tol / (2 mu p_n) outside a loaded one; the check refuses only
+    what that does not explain."""
+    from implicit_contact.rows import checks as rk
+    dim, kinds, piece1, piece2, fixed2, friction = CASES[3]       # sphere on a half-space, mu = 0.3
+    problem, z = random_pair_problem(dim, kinds, piece1, piece2, friction, np.random.default_rng(3), H, fixed2)
+    sl, mu, tol = problem.layout.pairs[0], friction.mu, 1e-10
+
+    def flags(zn, zt):
+        w = z.copy()
+        w[sl.p_n], w[sl.p_t], w[sl.p_r], w[sl.sigma] = zn, [zt, 0.0], 0.0, 1.0    # sliding: sigma > 0
+        cone_row = problem.fun(w)[sl.sigma]                        # its natural residual, sigma > 0
+        return cone_row, problem.checks(w, 1e-6, tol, 1e-9)[0] & rk.CONE
+
+    # p_n = 0: friction sqrt(tol / 2) is a converged row (residual tol / 2) and passes ...
+    row, cone = flags(0.0, math.sqrt(0.5 * tol))
+    assert abs(row) <= tol and not cone
+    # ... 10 sqrt(tol) is a residual of 100 tol: refused
+    row, cone = flags(0.0, 10.0 * math.sqrt(tol))
+    assert abs(row) > rk.CONE_SLACK * tol and cone
+    # loaded (p_n = 1 scaled): within the linear slack 1e3 tol passes, 1e4 tol beyond mu p_n is refused
+    assert not flags(1.0, mu + 5e2 * tol)[1]
+    row, cone = flags(1.0, mu + 1e4 * tol)
+    assert abs(row) > rk.CONE_SLACK * tol and cone
