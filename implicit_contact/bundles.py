@@ -11,25 +11,14 @@ kernels, then plain Python, read the same way.
 """
 from __future__ import annotations
 
+import inspect
 import types as _pytypes
 
 import numba
 from numba import types
 from numba.experimental import structref
 
-WORLD_FIELDS = ("sk_nv", "sk_voff", "sk_moff", "bd_kind", "bd_sk", "bd_joff", "ob_body", "ob_bounded", "ob_dim",
-                "ob_centre", "ob_half", "ob_reach", "ob_radius", "exact_lo", "exact_hi", "is_mobile", "fixed",
-                "read_bodies", "Q", "V", "TAU", "FEXT", "CG", "MB", "FB", "VF", "JB", "TG", "R_given", "p_given",
-                "R_now", "p_now", "th_now", "R_pred", "p_pred", "th_pred", "R_half", "p_half", "th_half",
-                "margins", "glo", "ghi", "R_fixed", "p_fixed", "SPK", "SPD", "SPQ0", "V_solved", "DV_solved")
-TABLE_FIELDS = ("body_i", "body_f", "body_jac", "fpar", "sk_i", "sk_M", "v0", "hforce", "pair_i", "pair_f",
-                "sup_i", "sup_f", "loc_idx", "loc_off", "scale", "body_dim", "pos_rows", "sup_body", "sup_c",
-                "sup_er", "sup_mun", "lower", "upper", "rep", "st_R", "st_p", "st_w", "st_vo", "st_T", "FL", "JL",
-                "ws")
-SOLVER_FIELDS = ("x", "F", "xt", "Ft", "Phi", "Phit", "d", "g", "da", "db", "zk", "Jz", "history", "steps", "info",
-                 "fbuf", "work", "J", "H", "opt")
-CONTEXT_FIELDS = ("cand", "near", "far", "far_P", "far_g", "gaps", "eligible", "flags", "near_gaps",
-                  "left", "z0", "sup_y", "src", "J_at", "h_body", "sk_src", "identity")
+from ._jit import kernel
 
 
 @structref.register
@@ -72,32 +61,83 @@ class Context(structref.StructRefProxy):
     """What _repeat_step compares and fills (stepper._Context)."""
 
 
+# The constructors, compiled and cached like every kernel. numba's own proxy constructor
+# (StructRefProxy.__new__) is an uncached njit function, compiled afresh in every process for
+# each bundle: ~1.5-6 s per process before its first step (measured: 5.1 s of the first grasp
+# trial's 5.9 s in a fresh worker). Their parameters are the bundles' fields.
+@kernel
+def new_world(
+        sk_nv, sk_voff, sk_moff, bd_kind, bd_sk, bd_joff, ob_body, ob_bounded, ob_dim, ob_centre, ob_half,
+        ob_reach, ob_radius, exact_lo, exact_hi, is_mobile, fixed, read_bodies, Q, V, TAU, FEXT, CG, MB, FB,
+        VF, JB, TG, R_given, p_given, R_now, p_now, th_now, R_pred, p_pred, th_pred, R_half, p_half, th_half,
+        margins, glo, ghi, R_fixed, p_fixed, SPK, SPD, SPQ0, V_solved, DV_solved):
+    return World(
+        sk_nv, sk_voff, sk_moff, bd_kind, bd_sk, bd_joff, ob_body, ob_bounded, ob_dim, ob_centre, ob_half,
+        ob_reach, ob_radius, exact_lo, exact_hi, is_mobile, fixed, read_bodies, Q, V, TAU, FEXT, CG, MB, FB,
+        VF, JB, TG, R_given, p_given, R_now, p_now, th_now, R_pred, p_pred, th_pred, R_half, p_half, th_half,
+        margins, glo, ghi, R_fixed, p_fixed, SPK, SPD, SPQ0, V_solved, DV_solved)
+
+
+@kernel
+def new_tables(
+        body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f, loc_idx,
+        loc_off, scale, body_dim, pos_rows, sup_body, sup_c, sup_er, sup_mun, lower, upper, rep, st_R, st_p,
+        st_w, st_vo, st_T, FL, JL, ws):
+    return Tables(
+        body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f, loc_idx,
+        loc_off, scale, body_dim, pos_rows, sup_body, sup_c, sup_er, sup_mun, lower, upper, rep, st_R, st_p,
+        st_w, st_vo, st_T, FL, JL, ws)
+
+
+@kernel
+def new_solver(
+        x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, opt):
+    return Solver(
+        x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, opt)
+
+
+@kernel
+def new_context(
+        cand, near, far, far_P, far_g, gaps, eligible, flags, near_gaps, left, z0, sup_y, src, J_at, h_body,
+        sk_src, identity):
+    return Context(
+        cand, near, far, far_P, far_g, gaps, eligible, flags, near_gaps, left, z0, sup_y, src, J_at, h_body,
+        sk_src, identity)
+
+
+def _fields(ctor) -> tuple:
+    return tuple(inspect.signature(getattr(ctor, "py_func", ctor)).parameters)
+
+
+WORLD_FIELDS, TABLE_FIELDS = _fields(new_world), _fields(new_tables)
+SOLVER_FIELDS, CONTEXT_FIELDS = _fields(new_solver), _fields(new_context)
+
 structref.define_proxy(World, WorldType, list(WORLD_FIELDS))
 structref.define_proxy(Tables, TablesType, list(TABLE_FIELDS))
 structref.define_proxy(Solver, SolverType, list(SOLVER_FIELDS))
 structref.define_proxy(Context, ContextType, list(CONTEXT_FIELDS))
 
 
-def _make(cls, fields, values: dict):
+def _make(ctor, fields, values: dict):
     missing = [f for f in fields if f not in values]
     if missing:
-        raise ValueError(f"a {cls.__name__} bundle needs {missing}")
+        raise ValueError(f"{ctor.__name__} needs {missing}")
     if numba.config.DISABLE_JIT:
         return _pytypes.SimpleNamespace(**{f: values[f] for f in fields})
-    return cls(*[values[f] for f in fields])
+    return ctor(*[values[f] for f in fields])
 
 
 def world(**values):
-    return _make(World, WORLD_FIELDS, values)
+    return _make(new_world, WORLD_FIELDS, values)
 
 
 def tables(**values):
-    return _make(Tables, TABLE_FIELDS, values)
+    return _make(new_tables, TABLE_FIELDS, values)
 
 
 def solver(**values):
-    return _make(Solver, SOLVER_FIELDS, values)
+    return _make(new_solver, SOLVER_FIELDS, values)
 
 
 def context(**values):
-    return _make(Context, CONTEXT_FIELDS, values)
+    return _make(new_context, CONTEXT_FIELDS, values)
