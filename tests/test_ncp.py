@@ -266,6 +266,49 @@ def test_sparse_jacobian_gives_the_same_answer_as_dense():
             np.testing.assert_allclose(sparse.x, dense.x, atol=ATOL_SPARSE_DENSE)
 
 
+def _full_pattern(J):
+    """J as CSR storing every entry, zeros included (a step problem's fixed pattern does)."""
+    n = J.shape[0]
+    return sp.csr_matrix((J.ravel().copy(), np.tile(np.arange(n), n), np.arange(0, n * n + 1, n)), shape=(n, n))
+
+
+def test_sparse_jacobian_with_stored_zeros_gives_the_same_iterates_as_dense():
+    """Stored zeros are dropped before SuperLU factorises (ncp._nonzeros), which compacts the
+    arrays it is given: the Levenberg-Marquardt and gradient steps must still see H itself.
+    Singular problems whose Jacobians have zeros (two equal rows beside a decoupled one; the same
+    made inconsistent) are solved the same way from a Jacobian that stores all n^2 entries."""
+    J0 = np.array([[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 2.0]])
+    for c, x0 in (([-1.0, -1.0, 3.0], [3.0, -7.0, 0.5]), ([-1.0, 1.0, 3.0], [0.3, 0.2, -4.0])):
+        fun, jac = _lcp(J0, c)
+        dense = solve_mcp(fun, jac, x0, -np.inf, np.inf, SolverOptions(tol=ATOL_EXACT))
+        sparse = solve_mcp(fun, lambda x: _full_pattern(jac(x)), x0, -np.inf, np.inf, SolverOptions(tol=ATOL_EXACT))
+        assert "L" in dense.steps
+        assert sparse.status is dense.status and sparse.steps == dense.steps
+        np.testing.assert_allclose(sparse.x, dense.x, atol=ATOL_SPARSE_DENSE)
+
+
+def test_sparse_solve_refuses_a_solution_that_does_not_solve():
+    """SuperLU reports only exactly singular matrices; on a numerically singular one it returns a
+    finite d far from solving H d = rhs (on example-robot-data's alex_sake even with invalid BLAS
+    calls inside). Such a d is no Newton direction: ncp._sparse_solve and the fixed-pattern Newton
+    step return None (singular: the solver takes its LM step) unless ||H d - rhs|| <= tol ||rhs||."""
+    import scipy.sparse.linalg as spla
+    from implicit_contact import ncp
+    rng = np.random.default_rng(0)
+    n = 6
+    A = rng.normal(size=(n, n - 1)) @ rng.normal(size=(n - 1, n))     # rank n - 1 up to round-off
+    rhs = rng.normal(size=n)                                         # not in its range
+    d = spla.splu(sp.csc_matrix(A)).solve(rhs)
+    assert np.isfinite(d).all() and np.linalg.norm(A @ d - rhs) > ncp.SPARSE_SOLVE_TOL * np.linalg.norm(rhs)
+    assert ncp._sparse_solve(sp.csr_matrix(A), rhs) is None
+    J = _full_pattern(A)
+    assert ncp._SparsePattern(J).newton(J, np.zeros(n), np.ones(n), -rhs, np.empty(n)) is None
+    well_posed = A + n * np.eye(n)
+    J = _full_pattern(well_posed)
+    d = ncp._SparsePattern(J).newton(J, np.zeros(n), np.ones(n), -rhs, np.empty(n))
+    np.testing.assert_allclose(well_posed @ d, rhs, rtol=0, atol=ATOL_EXACT * np.abs(rhs).max())
+
+
 def test_sparse_levenberg_marquardt_step_matches_the_dense_one():
     """ncp._sparse_lm solves (H^T H + mu I) d = -g through the augmented system [[I, -H], [H^T, mu I]]
     (no product H^T H): the same step as dense_lm's normal equations, on a random sparse H with a
