@@ -233,3 +233,23 @@ def test_resume_watched_goes_on_with_a_solve_the_watch_ended(monkeypatch):
     assert rec["steps"] == rec["steps_planned"]
     assert recovery.RETRY in used
     assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+
+
+# a campaign run one of whose steps needed more than 8 solves: with recovery.MAX_SOLVES = 8 the
+# recoveries asked for a ninth at h = 0.0135 s and the step was retried at h/2 (measured at d609407)
+NEEDS_MORE_SOLVES = (2775074190, "stack", "prism", 0.013506514042020084)
+
+
+def test_a_step_whose_recoveries_need_more_than_eight_solves_is_not_halved(monkeypatch):
+    """recovery.MAX_SOLVES: a prism dropped on a prism. With 8 solves per step one of its steps
+    runs out of solves and the retry policy halves it; with MAX_SOLVES (12) every step is solved
+    at the run's h. Both complete without penetration beyond the contact tolerance."""
+    from implicit_contact import recovery
+    rec = fc.run(fc.Config(*NEEDS_MORE_SOLVES, budget=120.0))
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"] and rec["retried"] == 0
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+    monkeypatch.setattr(recovery, "MAX_SOLVES", 8)
+    rec8 = fc.run(fc.Config(*NEEDS_MORE_SOLVES, budget=120.0))
+    assert rec8["status"] == "ok" and rec8["retried"] >= 1
+    assert rec8["worst_distance"] >= -ic.StepperOptions().contact_tolerance
