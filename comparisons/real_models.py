@@ -29,7 +29,6 @@ Run: python -m comparisons.real_models [--duration 0.3] [--budget 60] [--workers
 from __future__ import annotations
 
 import argparse
-import concurrent.futures as cf
 import csv
 import glob
 import math
@@ -109,12 +108,18 @@ def _world(path, root):
     return world, skel, nodes
 
 
-def run_model(path, root, duration, budget) -> dict:
-    import implicit_contact as ic
+def _empty_row(path, root) -> dict:
     name = os.path.relpath(path, os.path.join(root, "robots"))
-    row = {"model": name, "collision": False, "accepted": False, "refusal": "", "steps": 0, "retried": 0,
+    return {"model": name, "collision": False, "accepted": False, "refusal": "", "steps": 0, "retried": 0,
            "failure": "", "deepest_mm": 0.0, "median_ms": math.nan, "max_ms": math.nan, "ratio": math.nan,
            "root_z": math.nan, "root_z_dart": math.nan, "bodies": 0, "dofs": 0}
+
+
+def run_model(path, root, duration, budget, progress=None) -> dict:
+    """One model's row. progress (a shared array of 2, or None): the steps done and which stepper
+    is running (0 implicit, 1 DART), for the row of a process that dies mid-step (run_isolated)."""
+    import implicit_contact as ic
+    row = _empty_row(path, root)
     try:
         world, skel, nodes = _world(path, root)
         if world is None:
@@ -133,6 +138,8 @@ def run_model(path, root, duration, budget) -> dict:
         ti, tn = [], []
         spent = 0.0
         for _ in range(int(round(duration / H))):
+            if progress is not None:
+                progress[0], progress[1] = row["steps"], 0
             t0 = time.perf_counter()
             try:
                 report = stepper.step()
@@ -140,6 +147,8 @@ def run_model(path, root, duration, budget) -> dict:
                 row["failure"] = str(exc)[:300]
                 break
             t1 = time.perf_counter()
+            if progress is not None:
+                progress[1] = 1
             native.step()
             t2 = time.perf_counter()
             ti.append(t1 - t0)
@@ -159,6 +168,56 @@ def run_model(path, root, duration, budget) -> dict:
         row["root_z_dart"] = float(nskel.getBodyNode(0).getWorldTransform().translation()[2])
     except Exception as exc:                       # anything else is a defect: reported, not hidden
         row["failure"] = "EXCEPTION " + "".join(traceback.format_exception_only(type(exc), exc)).strip()[:300]
+    return row
+
+
+def _child(conn, target, args):
+    conn.send(target(*args))
+    conn.close()
+
+
+def run_isolated(jobs, workers, crashed, on_row):
+    """Runs target(*args, progress) for each (target, args) of jobs, each in its own process
+    (spawn), at most `workers` at once, and calls on_row with each result as it comes. DART's
+    own step segfaults in FCL on some models (example-robot-data's g1_29dof_with_hand between
+    t = 0.9 and 1 s, a null pointer in libfcl, measured at d6a9e99): a process that dies costs
+    its row only; on_row then gets crashed(args, progress, exitcode)."""
+    import multiprocessing
+    import multiprocessing.connection
+    ctx = multiprocessing.get_context("spawn")
+    pending, running = list(jobs), []
+    while pending or running:
+        while pending and len(running) < workers:
+            target, args = pending.pop(0)
+            progress = ctx.Array("d", [0.0, -1.0], lock=False)
+            recv, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_child, args=(send, target, (*args, progress)))
+            proc.start()
+            send.close()
+            running.append((proc, recv, args, progress))
+        ready = multiprocessing.connection.wait([r for _, r, _, _ in running])
+        for item in [it for it in running if it[1] in ready]:
+            proc, recv, args, progress = item
+            try:
+                result = recv.recv()
+            except EOFError:                        # the process died before it could answer
+                proc.join()
+                result = crashed(args, progress, proc.exitcode)
+            else:
+                proc.join()
+            recv.close()
+            running.remove(item)
+            on_row(result)
+
+
+def _crashed_row(args, progress, exitcode) -> dict:
+    path, root = args[0], args[1]
+    row = _empty_row(path, root)
+    row["collision"] = row["accepted"] = True
+    row["steps"] = int(progress[0])
+    who = {0.0: "the implicit step", 1.0: "DART's own step"}.get(progress[1], "loading the model")
+    row["failure"] = (f"CRASH: the process died (exit code {exitcode}) in {who} after {int(progress[0])} "
+                      f"steps; the row's other figures are lost")
     return row
 
 
@@ -251,17 +310,13 @@ def main(argv=None):
         hull_table(paths, root)
         return
     rows = []
-    if args.workers > 1:
-        ctx = __import__("multiprocessing").get_context("spawn")
-        with cf.ProcessPoolExecutor(args.workers, mp_context=ctx) as pool:
-            futures = [pool.submit(run_model, p, root, args.duration, args.budget) for p in paths]
-            for f in cf.as_completed(futures):
-                rows.append(f.result())
-                _print_row(rows[-1])
-    else:
-        for p in paths:
-            rows.append(run_model(p, root, args.duration, args.budget))
-            _print_row(rows[-1])
+
+    def on_row(row):
+        rows.append(row)
+        _print_row(row)
+
+    run_isolated([(run_model, (p, root, args.duration, args.budget)) for p in paths], max(args.workers, 1),
+                 _crashed_row, on_row)
     rows.sort(key=lambda r: r["model"])
     os.makedirs(OUT, exist_ok=True)
     with open(os.path.join(OUT, "real_models.csv"), "w", newline="") as f:
