@@ -327,10 +327,14 @@ def main(argv=None):
     col = [r for r in rows if r["collision"]]
     acc = [r for r in col if r["accepted"]]
     done = [r for r in acc if not r["failure"] and r["steps"] >= int(round(args.duration / H))]
-    failed = [r for r in acc if r["failure"]]
+    failed = [r for r in acc if r["failure"] and not r["failure"].startswith("CRASH")]
+    crashed = [r for r in acc if r["failure"].startswith("CRASH")]
     print(f"\n{len(rows)} URDFs, {len(col)} with collision geometry, {len(acc)} accepted "
           f"({100 * len(acc) / max(len(col), 1):.0f} %), {len(done)} completed {args.duration} s, "
-          f"{len(failed)} failed, {sum(1 for r in acc if not r['failure'] and r not in done)} cut by the budget")
+          f"{len(failed)} failed, {sum(1 for r in acc if not r['failure'] and r not in done)} cut by the budget, "
+          f"{len(crashed)} crashed")
+    for r in crashed:
+        print(f"crashed {r['model']}: {r['failure']}")
     if acc:
         ratios = np.array([r["ratio"] for r in acc if math.isfinite(r["ratio"])])
         if len(ratios):
