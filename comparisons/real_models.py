@@ -213,7 +213,7 @@ def run_isolated(jobs, workers, crashed, on_row):
 def _crashed_row(args, progress, exitcode) -> dict:
     path, root = args[0], args[1]
     row = _empty_row(path, root)
-    row["collision"] = row["accepted"] = True
+    row["collision"] = row["accepted"] = progress[1] >= 0     # it had begun stepping: it was accepted
     row["steps"] = int(progress[0])
     who = {0.0: "the implicit step", 1.0: "DART's own step"}.get(progress[1], "loading the model")
     row["failure"] = (f"CRASH: the process died (exit code {exitcode}) in {who} after {int(progress[0])} "
@@ -328,7 +328,7 @@ def main(argv=None):
     acc = [r for r in col if r["accepted"]]
     done = [r for r in acc if not r["failure"] and r["steps"] >= int(round(args.duration / H))]
     failed = [r for r in acc if r["failure"] and not r["failure"].startswith("CRASH")]
-    crashed = [r for r in acc if r["failure"].startswith("CRASH")]
+    crashed = [r for r in rows if r["failure"].startswith("CRASH")]
     print(f"\n{len(rows)} URDFs, {len(col)} with collision geometry, {len(acc)} accepted "
           f"({100 * len(acc) / max(len(col), 1):.0f} %), {len(done)} completed {args.duration} s, "
           f"{len(failed)} failed, {sum(1 for r in acc if not r['failure'] and r not in done)} cut by the budget, "

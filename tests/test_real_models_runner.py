@@ -36,3 +36,5 @@ def test_the_crash_row_says_where_the_process_died():
     row = rm._crashed_row((path, root, 1.0, 60.0), [917.0, 1.0], -11)
     assert row["model"] == "g1_description/urdf/g1.urdf" and row["steps"] == 917 and row["accepted"]
     assert row["failure"].startswith("CRASH") and "DART's own step" in row["failure"] and "-11" in row["failure"]
+    loading = rm._crashed_row((path, root, 1.0, 60.0), [0.0, -1.0], -11)
+    assert not loading["accepted"] and "loading the model" in loading["failure"]
