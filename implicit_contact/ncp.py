@@ -123,7 +123,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -132,7 +132,7 @@ import scipy.sparse.linalg as spla
 
 from ._jit import generator_kernel, kernel
 
-__all__ = ["solve_mcp", "SolverOptions", "McpResult", "Status"]
+__all__ = ["solve_mcp", "solve_proximal", "SolverOptions", "McpResult", "Status"]
 
 
 class Status(enum.Enum):
@@ -887,6 +887,82 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
             Hg = H @ buf.g
             buf.fbuf[F_HGSQ] = float(Hg @ Hg)
     return result_from_buffers(buf, options)
+
+
+PROXIMAL_OUTER = 100    # solve_proximal's outer steps at most (each takes one iteration or more)
+
+
+def solve_proximal(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], object],
+                   x0, lower, upper, weight, options: SolverOptions = SolverOptions(),
+                   max_outer: int = PROXIMAL_OUTER) -> McpResult:
+    """MCP(F, l, u) by the proximal point method (R. T. Rockafellar, SIAM J. Control Optim. 14,
+    1976): x_{k+1} solves MCP(F + W_k (. - x_k), l, u) by :func:`solve_mcp` from x_k, until x_{k+1}
+    solves MCP(F, l, u) itself (natural residual <= options.tol). W_k = diag(min(weight, r_k)),
+    r_k the natural residual at x_k: the regularisation vanishes with the residual, as the
+    Levenberg-Marquardt damping of solve_mcp does, so the outer steps converge superlinearly once
+    r_k is below the flat directions' slopes (a fixed weight converges linearly there).
+
+    For problems whose solution is not unique in some unknowns, or nearly so: a contact impulse
+    shared by constraints that are (nearly) redundant, e.g. four feet sticking on the ground, whose
+    warp mode and torsions the sticking tangential rows already fix. There the Jacobian is singular
+    or its smallest singular values are far below ||Phi|| (1e-13..1e-6 against rows of O(1)), and
+    Newton, Levenberg-Marquardt and the merit's gradient all crawl along the flat directions. Each
+    regularised problem is strongly monotone in the weighted unknowns where F is flat in them (its
+    Jacobian gains W_k on the diagonal), so Newton converges on it; in a direction where F moves by
+    s per unit, the outer step closes the fraction s / (s + w_k) of the distance to the solution
+    set, and along an exact null direction it stays where it was (one of the solutions). A weight
+    of zero leaves a row as it is.
+
+    options.max_iterations bounds the inner iterations of all outer steps together. The result
+    is the last outer step's (steps and merit histories concatenated) with F and the residual of
+    the unregularised problem: CONVERGED as soon as that residual is <= tol; an inner solve that
+    fails ends it with that failure; MAX_ITERATIONS when the outer steps or the iterations run out.
+    """
+    x, lo, hi = check_problem(x0, lower, upper, options)
+    n = x.shape[0]
+    w = _as_bound(weight, n, "weight")
+    if not (np.isfinite(w).all() and (w >= 0.0).all()):
+        raise ValueError("weight must be finite and >= 0")
+    if isinstance(max_outer, bool) or not isinstance(max_outer, int) or max_outer < 1:
+        raise ValueError(f"max_outer must be an int >= 1, got {max_outer!r}")
+    x = np.clip(x, lo, hi)
+    iterations, steps, history, nfev, njev = 0, "", [], 0, 0
+    F = _check_f(fun(x.copy()), n)
+    residual = _natural_residual(x, F, lo, hi)
+    nfev += 1
+    for outer in range(max_outer):
+        left = options.max_iterations - iterations
+        centre = x.copy()
+        wk = np.minimum(w, residual)
+
+        def fun_k(z):
+            return _check_f(fun(z), n) + wk * (z - centre)
+
+        def jac_k(z):
+            J = jac(z)
+            if sp.issparse(J):
+                return (J + sp.diags(wk, format="csr")).tocsr()
+            return np.asarray(J, dtype=float) + np.diag(wk)
+
+        inner = solve_mcp(fun_k, jac_k, centre, lo, hi, replace(options, max_iterations=left))
+        iterations, steps, nfev, njev = (iterations + inner.iterations, steps + inner.steps,
+                                         nfev + inner.nfev + 1, njev + inner.njev)
+        history.extend(inner.merit_history)
+        x = inner.x
+        F = _check_f(fun(x.copy()), n)
+        residual = _natural_residual(x, F, lo, hi)
+        if inner.status is not Status.CONVERGED:
+            return McpResult(x, F, inner.status, iterations, residual, tuple(history),
+                             f"Proximal step {outer + 1} failed: {inner.message}", steps, nfev, njev)
+        if residual <= options.tol:
+            return McpResult(x, F, Status.CONVERGED, iterations, residual, tuple(history),
+                             f"Converged in {outer + 1} proximal steps ({iterations} iterations): natural "
+                             f"residual {residual:.3g} <= tol {options.tol:.3g}.", steps, nfev, njev)
+        if iterations >= options.max_iterations:
+            break
+    return McpResult(x, F, Status.MAX_ITERATIONS, iterations, residual, tuple(history),
+                     f"Stopped after {outer + 1} proximal steps ({iterations} iterations) with natural "
+                     f"residual {residual:.3g} > tol {options.tol:.3g}.", steps, nfev, njev)
 
 
 def _matvec(J, v):

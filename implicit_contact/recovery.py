@@ -17,6 +17,10 @@ so, mostly, is a step whose last allowed solve a recovery still wanted to restar
                                       faces hovering within the tolerance have a whole  hovering_parallel_faces_are_released_
                                       face of closest points (a cylinder sliding on its and_certified
                                       cap); left out, then certified apart at the end
+    indeterminate_       failed,      redundant contacts (impulses not unique): four    tests/test_indeterminate_impulses.py,
+    impulses             near a       feet sticking (torsions, warp mode), a table's    tests/test_ncp.py (solve_proximal)
+                         solution     four legs landing flat: Newton and LM crawl; the
+                                      proximal point method on the impulses converges
     face_landing         failed       faces landing on faces: from p_n = 0 the moment   tests/test_face_contact.py::test_box_
                                       rows do not see the contact point (a box resting  started_down_flat_with_spin_lands_in_
                                       flat, started down at 5 m/s with spin)            one_step
@@ -97,6 +101,8 @@ class Attempt:
     fresh_rows: bool = False                       # friction_rows just added rows: the next solve is watched
     watched: tuple | None = None                   # (solve index, problem, iterate) of a solve watched_solve ended
     resumed: bool = False                          # resume_watched went on with it
+    proximal: bool = False                         # indeterminate_impulses: the next solve is proximal
+    proximal_starts: tuple | None = None           # indeterminate_impulses: (problem, its starts not yet tried)
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -142,6 +148,50 @@ def passed_through(stepper, att: Attempt, problem, result):
         att.reseeded = _reseed(problem, result.x, att.tol)
         return RETRY
     return replace(result, status=ncp.Status.LINE_SEARCH_FAILED, message=f"pairs {through} pass through a half-space")
+
+
+# [scaled rows] indeterminate_impulses applies to a solve that stopped this close to a solution (the
+# stalls it is for ended at 2e-7..1.5e-5; a landing 4-legged table whose solves failed at 1e-2..1
+# needed other recoveries, and the proximal re-solve only cost it 50 more iterations a step)
+NEAR_SOLUTION = 1e-4
+
+
+def indeterminate_impulses(stepper, att: Attempt, problem, result):
+    """A failed solve that stopped near a solution (NEAR_SOLUTION) with two or more touching pairs
+    (or one and joint rows): solve the same rows again by the proximal point method on the
+    impulses (ncp.solve_proximal, step_solver.impulse_weights), first from where the solve stopped,
+    then from its start; twice at most per set of rows.
+
+    Where contacts are (nearly) redundant their impulses are not unique: four feet sticking on the
+    ground fix the body's yaw through their tangential rows, so their four torsion impulses have a
+    3D null space, and nearly straight legs leave the normal impulses' warp mode (+ - + -) and the
+    feet's squeeze modes with singular values of 1e-9..1e-5 against rows of O(1); a leg's calf box
+    and foot sphere both touching share one tangential impulse. Newton's direction then fails
+    the descent test, and Levenberg-Marquardt, damped by 1e-2 ||Phi|| (~1e-8) against H^T H's
+    1e-12 there, crawls: example-robot-data's a1 landing on its four calf boxes stalled at natural
+    residuals 2e-7..6e-6 after 200 iterations at every h down to h / 16; the proximal re-solve from
+    that solve's start converged in 3 proximal steps and 17 iterations (from where it stopped it
+    stalled again). A four-legged table landing flat (tests/test_indeterminate_impulses.py): its
+    frictionless solve stalled at 4e-5 with p_n = (21, 0, 0, 24) and the proximal re-solve from
+    there converged in 2 proximal steps. Far from a solution the trouble is elsewhere (that
+    table's solves that failed at 1e-2..1 needed the other recoveries; a proximal re-solve from
+    the start cost 50 iterations each time and solved none)."""
+    if result.success or not result.residual <= NEAR_SOLUTION:
+        return None
+    if att.proximal_starts is None or att.proximal_starts[0] is not problem:
+        # first from where the solve stalled, then from its start; anew for other rows
+        att.proximal_starts = (problem, [result.x, att.z0])
+    starts = att.proximal_starts[1]
+    if not starts:
+        return None
+    x = result.x
+    touching = sum(1 for sl in problem.layout.pairs if x[sl.p_n] > TOUCH)
+    joints = sum(len(c) for c in problem.layout.joint_index or ())
+    if touching + min(joints, 1) < 2:
+        return None
+    att.proximal = True
+    att.reseeded = starts.pop(0)
+    return RETRY
 
 
 def face_landing(stepper, att: Attempt, problem, result):
@@ -227,6 +277,9 @@ def watched_solve(stepper, att: Attempt, problem, z0):
     10808 (the face campaign's counts did not change). Guarded by
     tests/test_stability_cases.py::test_watched_resolve_hands_a_stalled_sticking_start_to_restart_sliding_sooner."""
     fresh, att.fresh_rows = att.fresh_rows, False
+    if att.proximal:
+        att.proximal = False
+        return stepper._solve(problem, z0, proximal=True)
     if not fresh or att.watched is not None or att.resumed or SLIDING_WATCH <= 0:
         return stepper._solve(problem, z0)
     limit = stepper._solver_options().max_iterations
@@ -370,8 +423,8 @@ def friction_homotopy(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, release_idle, face_landing, restart_sliding, cold_start, reseed,
-              resume_watched, friction_homotopy)
+RECOVERIES = (friction_rows, passed_through, release_idle, indeterminate_impulses, face_landing, restart_sliding,
+              cold_start, reseed, resume_watched, friction_homotopy)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1552,9 +1552,10 @@ class ImplicitContactStepper:
         """The solver options of this step's solves: the retry policy's for a retried step's substeps."""
         return self._retry_options() if self._retrying else self.options.solver
 
-    def _solve(self, problem, z0, sync=True, limit=None, watch=0):
+    def _solve(self, problem, z0, sync=True, limit=None, watch=0, proximal=False):
         """step_solver.solve (compiled, polished; see there), with the retry policy's budget;
-        limit: at most this many iterations; watch: ncp.SolverOptions.watch (recovery.watched_solve)."""
+        limit: at most this many iterations; watch: ncp.SolverOptions.watch (recovery.watched_solve);
+        proximal: by the proximal point method (recovery.indeterminate_impulses)."""
         opts = self._solver_options()
         if limit is not None or watch:
             opts = self._variant(opts, opts.max_iterations if limit is None else limit, watch)
@@ -1562,7 +1563,7 @@ class ImplicitContactStepper:
         if budget is not None:
             opts = budget.admit(opts)
         try:
-            result = step_solver.solve(problem, z0, opts, sync)
+            result = step_solver.solve(problem, z0, opts, sync, proximal)
             if budget is not None:
                 budget.spend(result.iterations)
             return result

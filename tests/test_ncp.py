@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse as sp
 
 from comparisons.mcp_problems import lemke, standard_problems
-from implicit_contact.ncp import McpResult, SolverOptions, Status, solve_mcp
+from implicit_contact.ncp import McpResult, SolverOptions, Status, solve_mcp, solve_proximal
 
 MIN_SOLVED_FRACTION = 0.95   # of all (problem, start) pairs, the brief's robustness target
 RTOL_FD = 1e-6               # central differences, step 1e-6, relative to max |J| of O(1..1e3)
@@ -413,3 +413,101 @@ def test_shorten_nonfinite_halves_a_step_into_undefined_rows_and_converges():
     assert shortened.success and shortened.x[0] == pytest.approx(1.0, abs=1e-10)
     with pytest.raises(ValueError, match="shorten_nonfinite"):
         SolverOptions(shorten_nonfinite=1)
+
+
+# the stepper's descent test (stepper.DEFAULT_SOLVER): the tests below take O(1) steps on residuals of 1e-6
+PROXIMAL_OPTIONS = SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24)
+
+
+def test_proximal_steps_contract_by_w_over_s_plus_w():
+    """F(x) = s (x - 2), one free row, weight w: proximal step k solves s (x - 2) + w_k (x - x_k) = 0
+    exactly (one Newton iteration), w_k = min(w, r_k) with r_k = s |x_k - 2| the natural residual
+    at x_k, so the error shrinks by w_k / (s + w_k): by half while r_k >= w, then quadratically.
+    With s = w = 1e-6 from x = 1 the errors are 1/2, 1/6, 1/42, 1/1806, 3.1e-7: five steps to
+    a residual <= 1e-10, where a fixed w would take 14 (2^-13 = 1.2e-4 > 1e-4)."""
+    s, w = 1e-6, 1e-6
+
+    def fun(x):
+        return s * (x - 2.0)
+
+    def jac(x):
+        return np.array([[s]])
+
+    errors = [1.0]
+    while s * errors[-1] > PROXIMAL_OPTIONS.tol:
+        wk = min(w, s * errors[-1])
+        errors.append(errors[-1] * wk / (s + wk))
+    assert len(errors) - 1 == 5 and errors[4] == pytest.approx(1.0 / 1806.0)
+    r = solve_proximal(fun, jac, [1.0], -np.inf, np.inf, [w], PROXIMAL_OPTIONS)
+    assert r.success and "in 5 proximal steps" in r.message
+    assert r.iterations == 5 and r.steps == "N" * 5
+    assert r.x[0] == pytest.approx(2.0 - errors[-1], abs=1e-12)
+    assert r.residual == pytest.approx(s * errors[-1], rel=1e-6)
+
+
+def _table(c):
+    """A table of mass m on four legs at (+-a, +-b), resting (v = 0 is the answer): unknowns
+    v = (vz, wx, wy) (free rows M v - B^T p - f) and the legs' impulses p >= 0 (rows B v). Any
+    p = mgh/4 (1, 1, 1, 1) + t (1, -1, 1, -1) with p >= 0 solves it (the warp mode is B's null
+    vector). The start: free-fall velocities and impulses mgh/4 + c times the warp mode."""
+    m, g, h, a, b = 2.0, 9.81, 1e-2, 0.3, 0.2
+    legs = np.array([[a, b], [-a, b], [-a, -b], [a, -b]])
+    B = np.column_stack([np.ones(4), legs[:, 1], -legs[:, 0]])
+    M = np.diag([m, 0.1, 0.2])
+    f = np.array([-m * g * h, 0.0, 0.0])
+    warp = np.array([1.0, -1.0, 1.0, -1.0])
+    assert np.allclose(B.T @ warp, 0.0)
+
+    def fun(z):
+        return np.concatenate([M @ z[:3] - B.T @ z[3:] - f, B @ z[:3]])
+
+    def jac(z):
+        J = np.zeros((7, 7))
+        J[:3, :3], J[:3, 3:], J[3:, :3] = M, -B.T, B
+        return J
+
+    p_rest = m * g * h / 4.0
+    z0 = np.concatenate([np.linalg.solve(M, f), p_rest + c * warp])
+    lo = np.r_[np.full(3, -np.inf), np.zeros(4)]
+    return fun, jac, z0, lo, p_rest, warp
+
+
+def test_proximal_solution_keeps_the_starts_share_of_a_non_unique_impulse():
+    """The regularised rows' component along B's null vector n reads w (p - p_k) . n = 0 (F does
+    not move along n), so every proximal step keeps the start's warp share: the answer is
+    mgh/4 (1, 1, 1, 1) + c n exactly, for any c that keeps p > 0."""
+    for c in (0.0, 0.01, -0.02):
+        fun, jac, z0, lo, p_rest, warp = _table(c)
+        weight = np.r_[np.zeros(3), np.full(4, 1e-6)]
+        r = solve_proximal(fun, jac, z0, lo, np.inf, weight, PROXIMAL_OPTIONS)
+        assert r.success
+        np.testing.assert_allclose(r.x[:3], 0.0, atol=1e-10)
+        np.testing.assert_allclose(r.x[3:], p_rest + c * warp, atol=1e-9)
+
+
+def test_proximal_solve_of_a_problem_without_solution_stops_with_the_true_residual():
+    """An inconsistent system (x1 + x2 = 1 and = -1) has no solution, but each regularised one does:
+    every proximal step moves x along (1, -1) by 1 / w and leaves the unregularised residual at 1.
+    The solve stops when the iterations run out and reports that residual, not the inner one."""
+    fun, jac = _lcp([[1.0, 1.0], [1.0, 1.0]], [-1.0, 1.0])
+    r = solve_proximal(fun, jac, [0.3, 0.2], -np.inf, np.inf, [1e-6, 1e-6], PROXIMAL_OPTIONS)
+    assert r.status is Status.MAX_ITERATIONS and r.message.startswith("Stopped after")
+    assert r.iterations == PROXIMAL_OPTIONS.max_iterations
+    assert r.residual == pytest.approx(1.0) and np.abs(r.x).max() > 1e6
+
+
+def test_proximal_solve_ends_with_an_inner_failure():
+    """A NaN at the start stops the first inner solve (NOT_FINITE); the proximal solve says which."""
+    def fun(x):
+        return np.array([np.nan])
+
+    r = solve_proximal(fun, lambda x: np.ones((1, 1)), [0.0], -np.inf, np.inf, [1e-6], PROXIMAL_OPTIONS)
+    assert r.status is Status.NOT_FINITE and r.message.startswith("Proximal step 1 failed: fun returned NaN")
+
+
+@pytest.mark.parametrize("weight, max_outer, match", [([-1e-6], 5, "weight"), ([np.nan], 5, "weight"),
+                                                      ([1e-6, 1e-6], 5, "weight"), ([1e-6], 0, "max_outer")])
+def test_proximal_malformed_input_raises_value_error(weight, max_outer, match):
+    fun, jac = _lcp([[1.0]], [-1.0])
+    with pytest.raises(ValueError, match=match):
+        solve_proximal(fun, jac, [0.0], 0.0, np.inf, weight, PROXIMAL_OPTIONS, max_outer=max_outer)
