@@ -156,6 +156,13 @@ def passed_through(stepper, att: Attempt, problem, result):
 NEAR_SOLUTION = 1e-4
 
 
+# each regularised solve of indeterminate_impulses is watched at this iteration (ncp.SolverOptions.watch):
+# Newton converges on one in a few iterations where the recovery applies, and a stalled one is its
+# failure (measured on example-robot-data, 60 models: without the watch its failed proximal solves
+# ran to their limit of 50-200 iterations, twice per set of rows)
+PROXIMAL_WATCH = 15
+
+
 def indeterminate_impulses(stepper, att: Attempt, problem, result):
     """A failed solve that stopped near a solution (NEAR_SOLUTION) with two or more touching pairs
     (or one and joint rows): solve the same rows again by the proximal point method on the
@@ -279,7 +286,7 @@ def watched_solve(stepper, att: Attempt, problem, z0):
     fresh, att.fresh_rows = att.fresh_rows, False
     if att.proximal:
         att.proximal = False
-        return stepper._solve(problem, z0, proximal=True)
+        return stepper._solve(problem, z0, watch=PROXIMAL_WATCH, proximal=True)
     if not fresh or att.watched is not None or att.resumed or SLIDING_WATCH <= 0:
         return stepper._solve(problem, z0)
     limit = stepper._solver_options().max_iterations
