@@ -185,16 +185,15 @@ def indeterminate_impulses(stepper, att: Attempt, problem, result):
     the start cost 50 iterations each time and solved none)."""
     if result.success or not result.residual <= NEAR_SOLUTION:
         return None
+    touching = sum(1 for sl in problem.layout.pairs if result.x[sl.p_n] > TOUCH)
+    joint_rows = any(len(c) for c in problem.layout.joint_index or ())
+    if touching + joint_rows < 2:
+        return None
     if att.proximal_starts is None or att.proximal_starts[0] is not problem:
         # first from where the solve stalled, then from its start; anew for other rows
         att.proximal_starts = (problem, [result.x, att.z0])
     starts = att.proximal_starts[1]
     if not starts:
-        return None
-    x = result.x
-    touching = sum(1 for sl in problem.layout.pairs if x[sl.p_n] > TOUCH)
-    joints = sum(len(c) for c in problem.layout.joint_index or ())
-    if touching + min(joints, 1) < 2:
         return None
     att.proximal = True
     att.reseeded = starts.pop(0)
