@@ -13,6 +13,9 @@ Each case is one smooth phase with an exact reference, measured at h = 4e-3, 2e-
             its exact 1-dof reference, and the rocking energy's largest relative error.
 * slide:    a ball (r = 0.1 m) sliding without spin at 2 m/s on mu = 0.3; error of its position
             at 0.15 s, inside the sliding phase (x = v0 t - mu g t^2 / 2).
+* damped joint: the pendulum without gravity, held by a DART joint spring (10 N m/rad) and
+            damper (0.05 N m s/rad), released at 0.3 rad; largest angle error in 1 s against the
+            exact damped oscillation.
 * example 2: [GI] Example 2 (scenes/sphere_on_two_spheres.py) over 4 s; largest error of its two
             contact-loss times against an order-2 run at h = EXAMPLE2_REF_H. The events are read
             at step times, so their error is O(h) for either order: printed, not a smooth phase.
@@ -42,6 +45,7 @@ INERTIA = np.array([0.1, 0.2, 0.35])    # [kg m^2], the top's principal moments
 OMEGA0 = np.array([0.3, 4.0, 0.5])      # [rad/s] body frame, near the unstable middle axis
 BALL_R, BALL_MU, BALL_V0 = 0.1, 0.3, 2.0
 G = 9.81
+HINGE_K, HINGE_D, HINGE_Q0 = 10.0, 0.05, 0.3     # [N m/rad], [N m s/rad], [rad]: the spring hinge
 
 
 def _stepper(world, order):
@@ -176,6 +180,45 @@ def slide_error(order: int, h: float, duration: float = 0.15) -> float:
     return abs(float(skel.getPositions()[3]) - (BALL_V0 * T - 0.5 * BALL_MU * G * T * T))
 
 
+def spring_hinge(h: float, stiffness: float, damping: float, q0: float = HINGE_Q0):
+    """(world, skeleton): the pendulum of pendulum_energy_error without gravity, held by a joint
+    spring (rest position 0) and damper, released at q0."""
+    world = dart_world(h, 0.0)
+    skel = revolute_pendulum(world, q0)
+    joint = skel.getJoint(0)
+    joint.setSpringStiffness(0, stiffness)
+    joint.setDampingCoefficient(0, damping)
+    return world, skel
+
+
+def spring_hinge_run(order: int, h: float, stiffness: float = HINGE_K, damping: float = HINGE_D,
+                     duration: float = 1.0):
+    """(q, v, exact q, exact v) at every step of the spring hinge over duration; the exact
+    solution of I q'' + D q' + K q = 0 by the matrix exponential."""
+    from scipy.linalg import expm
+    world, skel = spring_hinge(h, stiffness, damping)
+    stepper = _stepper(world, order)
+    inertia = float(skel.getMassMatrix()[0, 0])
+    n = int(round(duration / h))
+    out = np.empty((n, 2))
+    for i in range(n):
+        stepper.step()
+        out[i] = skel.getPositions()[0], skel.getVelocities()[0]
+    A = np.array([[0.0, 1.0], [-stiffness / inertia, -damping / inertia]])
+    step = expm(A * h)
+    exact, x = np.empty((n, 2)), np.array([HINGE_Q0, 0.0])
+    for i in range(n):
+        x = step @ x
+        exact[i] = x
+    return out[:, 0], out[:, 1], exact[:, 0], exact[:, 1]
+
+
+def damped_joint_error(order: int, h: float, duration: float = 1.0) -> float:
+    """Largest |q(t) - exact| [rad] of the spring hinge over duration."""
+    q, _, q_exact, _ = spring_hinge_run(order, h, duration=duration)
+    return float(np.max(np.abs(q - q_exact)))
+
+
 CASES = {
     "tumble": (lambda o, h: tumble_error(o, h), "omega error [rad/s]"),
     "pendulum": (lambda o, h: pendulum_energy_error(o, h), "energy error [J]"),
@@ -183,6 +226,7 @@ CASES = {
     "rocking": (lambda o, h: rocking_errors(o, h)[0], "tilt error [rad]"),
     "rocking energy": (lambda o, h: rocking_errors(o, h)[1], "relative energy error"),
     "slide": (lambda o, h: slide_error(o, h), "position error [m]"),
+    "damped joint": (lambda o, h: damped_joint_error(o, h), "angle error [rad]"),
     "example 2": (lambda o, h: example2_event_error(o, h), "event time error [s]"),
 }
 

@@ -23,6 +23,7 @@ per plane, and each plane is a multiplier of a pair's MCP), its measured outward
 tolerance max(1 mm, 1 % of the mesh's size), and the time to build it; then the worst.
 
 Run: python -m comparisons.real_models [--duration 0.3] [--budget 60] [--workers 2] [--only ur5,...]
+                                       [--order 2]   (to real_models_order2.csv / .png)
      python -m comparisons.real_models --hulls
      python -m comparisons.real_models --plot-only    (the PNG from the last CSV)
 """
@@ -115,8 +116,8 @@ def _empty_row(path, root) -> dict:
            "root_z": math.nan, "root_z_dart": math.nan, "bodies": 0, "dofs": 0}
 
 
-def run_model(path, root, duration, budget, progress=None) -> dict:
-    """One model's row. progress (a shared array of 2, or None): the steps done and which stepper
+def run_model(path, root, duration, budget, order=1, progress=None) -> dict:
+    """One model's row, stepped by StepperOptions(order=order). progress (a shared array of 2, or None): the steps done and which stepper
     is running (0 implicit, 1 DART), for the row of a process that dies mid-step (run_isolated)."""
     import implicit_contact as ic
     row = _empty_row(path, root)
@@ -130,7 +131,8 @@ def run_model(path, root, duration, budget, progress=None) -> dict:
             return row
         native, nskel, _ = _world(path, root)
         try:
-            stepper = ic.ImplicitContactStepper(world, mimic=ic.urdf_mimic_joints(path))
+            stepper = ic.ImplicitContactStepper(world, mimic=ic.urdf_mimic_joints(path),
+                                                options=ic.StepperOptions(order=order))
         except ValueError as exc:
             row["refusal"] = str(exc)[:300]
             return row
@@ -294,12 +296,14 @@ def main(argv=None):
     parser.add_argument("--budget", type=float, default=60.0, help="implicit wall seconds per model")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--only", default="", help="comma-separated substrings of model paths")
+    parser.add_argument("--order", type=int, default=1, choices=(1, 2), help="StepperOptions(order=...)")
     parser.add_argument("--hulls", action="store_true", help="the per-mesh hull table instead")
     parser.add_argument("--plot-only", action="store_true", help="draw the PNG from the last CSV")
     args = parser.parse_args(argv)
+    name = "real_models" if args.order == 1 else f"real_models_order{args.order}"
     if args.plot_only:
-        with open(os.path.join(OUT, "real_models.csv")) as f:
-            plot(list(csv.DictReader(f)), os.path.join(OUT, "real_models.png"))
+        with open(os.path.join(OUT, name + ".csv")) as f:
+            plot(list(csv.DictReader(f)), os.path.join(OUT, name + ".png"))
         return
     root = robots_root()
     paths = urdfs(root)
@@ -315,15 +319,15 @@ def main(argv=None):
         rows.append(row)
         _print_row(row)
 
-    run_isolated([(run_model, (p, root, args.duration, args.budget)) for p in paths], max(args.workers, 1),
+    run_isolated([(run_model, (p, root, args.duration, args.budget, args.order)) for p in paths], max(args.workers, 1),
                  _crashed_row, on_row)
     rows.sort(key=lambda r: r["model"])
     os.makedirs(OUT, exist_ok=True)
-    with open(os.path.join(OUT, "real_models.csv"), "w", newline="") as f:
+    with open(os.path.join(OUT, name + ".csv"), "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
         w.writeheader()
         w.writerows(rows)
-    plot([{k: str(v) for k, v in r.items()} for r in rows], os.path.join(OUT, "real_models.png"))
+    plot([{k: str(v) for k, v in r.items()} for r in rows], os.path.join(OUT, name + ".png"))
     col = [r for r in rows if r["collision"]]
     acc = [r for r in col if r["accepted"]]
     done = [r for r in acc if not r["failure"] and r["steps"] >= int(round(args.duration / H))]

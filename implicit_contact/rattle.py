@@ -42,6 +42,24 @@ In free flight (R1), (R2), (R5) are the velocity Verlet scheme on DART's configu
 dissipative against the slip at the end of the step. The end-of-step guarantees of [GI] hold:
 closest points and non-penetration at q+ are stage 1's rows.
 
+Joint springs and dampers (per dof stiffness K, damping D, rest position q_r; DART and order 1
+treat them implicitly, M + h D + h^2 K, first order) take the implicit midpoint rule in both
+stages: in (R1) and (R5) the force f includes
+
+    - K (q + h/2 u - q_r) - D u,      q + h/2 u = (q + q+) / 2                          (R9)
+
+(stage 1: M + h/2 dc/dv + h/2 D + h^2/4 K in place of M; stage 2: known terms). For a linear
+oscillator the split step is then the implicit midpoint rule: second order, A-stable, and its
+energy v M v / 2 + K (q - q_r)^2 / 2 kept to round-off. The midpoint rule multiplies a damped
+velocity by (1 - a) / (1 + a) per step, a = h D / (2 M): for a damper stiff for its dof (a > 1,
+a light finger link's damper at h = 1e-3) the factor turns negative and tends to -1, the
+velocity rings. Such a damper (h D_i / 2 > STIFF_DAMPER M_ii, M at q+) acts at v+ in stage 2:
+
+    (M + h/2 D_i) v+ in (R5) for that dof, D_i u left out of (R9) there               (R10)
+
+that is a factor 1 / (1 + a)^2, L-stable and first order in that dof (step_kernels.
+split_end_forces).
+
 The start frame of a pair (n0, t0, o0 and the levers r_b0 = a_b - p_b at l) comes from the last
 step's solution when the pair persists (its closest points at l+1 are the points at l now), else
 from a static closest-point solve at l (stepper.py).
@@ -76,6 +94,8 @@ from . import ncp
 from . import step_solver
 from .memory import _tangents
 from .rows import velocity as rv
+
+STIFF_DAMPER = 1.0   # a = h D_i / (2 M_ii) above which a joint damper acts at v+ in stage 2 (R10)
 
 
 def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:

@@ -340,6 +340,25 @@ def assemble_forces(W, h):
 
 
 @kernel
+def split_end_forces(W, h, U, stiff):
+    """Order 2's second-stage forces at (q+, u) (rattle.py, eqs R5, R9, R10), after DART's M and
+    Coriolis and gravity forces at (q+, u) were read into W.MB, W.CG: tau + tau_ext - (Coriolis +
+    gravity) - K (q + h/2 u - q_rest) - D u, the joint springs at the midpoint of q and q+ and
+    the dampers at the mean velocity u (W.Q: q at l); a damper stiff for its dof (h D / 2 >
+    stiff M_ii) acts at v+ instead: - D v+ = - D u - D (v+ - u), M += h/2 D on the diagonal
+    (stage 2 solves for v+ - u, as assemble_forces's tables for v+ - v). Without springs and
+    dampers this is assemble_forces's force to the bit."""
+    for i in range(W.FB.shape[0]):
+        W.FB[i] = W.TAU[i] + W.FEXT[i] - W.CG[i] - (W.SPK[i] * (W.Q[i] + 0.5 * h * U[i] - W.SPQ0[i]) + W.SPD[i] * U[i])
+    for s in range(W.sk_nv.shape[0]):
+        k, off, moff = W.sk_nv[s], W.sk_voff[s], W.sk_moff[s]
+        for i in range(k):
+            d = W.SPD[off + i]
+            if 0.5 * h * d > stiff * W.MB[moff + i * k + i]:
+                W.MB[moff + i * k + i] += 0.5 * h * d
+
+
+@kernel
 def given_poses(W):
     """The fixed and articulated bodies' poses from DART's transforms TG (4 x 4); returns whether a
     fixed body moved since the last call (its unbounded pieces' exact boxes are then stale)."""

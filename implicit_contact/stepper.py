@@ -77,8 +77,8 @@ class StepperOptions:
         its contact patch's torsion radius (patch.py: a box on its face, a cylinder on its cap or
         side); False leaves such pairs without torsion rows.
     order: 1 is [GI] as printed (first order); 2 the split step of rattle.py (second order in
-        free flight and persistent contact; two solves per step; no quasi-rigid layers and no
-        joint springs or dampers yet, refused at construction).
+        free flight and persistent contact; two solves per step; joint springs and dampers by
+        the implicit midpoint rule; no quasi-rigid layers yet, refused at construction).
     max_step_iterations: the Newton iterations one call of step() may spend over all its solves,
         recoveries and halvings (budget.py); when they are spent the step fails at once, the world
         unchanged (StepFailure, or a failed report under on_failure="warn"). None: no limit.
@@ -610,8 +610,6 @@ class ImplicitContactStepper:
         why = []
         if any(o.compliance is not None for o in self._objects):
             why.append("quasi-rigid layers")
-        if any(rec.spring_damper is not None for rec in self.scene.skeletons):
-            why.append("joint springs or dampers")
         if why:
             raise ValueError("StepperOptions(order=2) does not support " + " or ".join(why) +
                              " yet; use order=1 ([GI]'s step) for this world")
@@ -750,7 +748,7 @@ class ImplicitContactStepper:
                 rec.skeleton.integratePositions(h)
         for rec, _, M, cg in w.skeleton_views:
             adapter.read_dynamics(rec, M, cg)
-        sk.assemble_forces(w.bundle, h)        # (no springs or dampers: _check_order2)
+        sk.split_end_forces(w.bundle, h, self._world_vector(u), rattle.STIFF_DAMPER)   # (R9, R10)
         return 0.5 * h * w.FB
 
     def _stage2_step(self, first, u, hf, joints, t0, h):
@@ -806,16 +804,24 @@ class ImplicitContactStepper:
                 rec.skeleton.setAccelerations((v_next[s] - v_l[o:o + k]) / h)
 
     def _stage1_tables(self, h):
-        """Stage 1's skeleton tables (rattle.py, eq R1): MB1 = M + h/2 dc/dv at (q, v), FB1 = f / 2
-        (the rows read h FB1 = h/2 f)."""
+        """Stage 1's skeleton tables (rattle.py, eqs R1, R9): MB1 = M + h/2 dc/dv at (q, v), FB1 =
+        f / 2 (the rows read h FB1 = h/2 f); joint springs and dampers at the midpoint: MB1 +=
+        h/2 D + h^2/4 K, FB1 = (f - K (q - q_rest + h/2 v) - D v) / 2. (MB and FB hold [GI]'s
+        tables, DART's implicit springs and dampers: M + h D + h^2 K, f - K (q - q_rest + h v) -
+        D v; step_kernels.assemble_forces.)"""
         w = self._world
         for s, rec in enumerate(self.scene.skeletons):
             k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
             if not k:
                 continue
             C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
-            w.MB1[mo:mo + k * k] = (w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C).ravel()
+            M1 = w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C
             w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
+            if rec.spring_damper is not None:
+                K, D, v = w.SPK[o:o + k], w.SPD[o:o + k], w.V[o:o + k]
+                M1[np.diag_indices(k)] -= 0.5 * h * D + 0.75 * h * h * K
+                w.FB1[o:o + k] += 0.25 * h * K * v
+            w.MB1[mo:mo + k * k] = M1.ravel()
 
     def _start_frame(self, spec, state) -> np.ndarray | None:
         """A pair's frame at l (rattle.start_frame): its closest points at l from the last step's
