@@ -6,6 +6,7 @@ import pytest
 
 import implicit_contact as ic
 from comparisons import convergence as cv
+from implicit_contact import ncp
 from implicit_contact import shapes as shp
 from implicit_contact.params import Friction
 from implicit_contact.testing import dart_world, ground_box, jacobian_error, random_pair_problem
@@ -296,4 +297,76 @@ def test_order_2_falls_back_to_order_1_when_stage_1_fails(monkeypatch):
 
     monkeypatch.setattr(ic.ImplicitContactStepper, "_order1_step", lambda self, h, keep, failed: failed)
     with pytest.raises(ic.StepFailure):
+        run(2)
+
+
+ONE_STEP_ATOL = 1e-9       # m, rad, m/s: one order-1 step among order-2 steps, against its predicted shift
+
+
+def test_order_2_falls_back_to_order_1_when_stage_2_fails(monkeypatch):
+    """A split step whose second stage fails (DART at q+ by then) is taken as [GI]'s step from
+    l: with stage 2 made to fail on every step with contact, a ball sliding to rolling under
+    order 2 follows order 1's trajectory, every step counted; without the fallback the first
+    step raises StepFailure; a stage 2 of the repeat path (_split_repeat) that fails once costs
+    one order-1 step."""
+    from implicit_contact import rattle
+    h, v0, steps = 0.002, 2.0, 40
+
+    def run(order):
+        world = dart_world(h)
+        ground_box(world, mu=0.3)
+        ball = cv.ball(world, 0.3, 0.1, [v0, 0.0, 0.0])
+        stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
+        for _ in range(steps):
+            stepper.step()
+        return stepper, np.concatenate([ball.getPositions(), ball.getVelocities()])
+
+    _, reference = run(1)
+    solves = []
+
+    def failing_stage2(self, options, converged_at=None, budget=None):
+        solves.append(1)
+        return failed(self)
+
+    def failed(self):
+        x = self.start()
+        return ncp.McpResult(x, np.zeros_like(x), ncp.Status.MAX_ITERATIONS, 50, 1.0, (), "stage 2 made to fail",
+                             "", 0, 0)
+
+    real_solve, real_repeat = rattle.Stage2.solve, ic.ImplicitContactStepper._split_repeat
+    _, order2 = run(2)
+    repeated = []
+
+    def failing_once(self, options, converged_at=None, budget=None):
+        solves.append(1)
+        if len(solves) == 10:
+            return failed(self)
+        return real_solve(self, options, converged_at, budget)
+
+    def split_repeat(self, h, t0):
+        report = real_repeat(self, h, t0)
+        repeated.append((len(solves), report is not None))
+        return report
+
+    monkeypatch.setattr(rattle.Stage2, "solve", failing_once)
+    monkeypatch.setattr(ic.ImplicitContactStepper, "_split_repeat", split_repeat)
+    stepper, once = run(2)
+    assert (10, True) in repeated and stepper.order1_steps == 1      # the 10th stage 2 was the repeat path's
+    # that one step moved the positions with its end velocity, order 2's with the mean: under the
+    # sliding ball's constant accelerations (-mu g along x, spin-up 5 mu g / (2 r) about y) the
+    # runs differ by h^2 a / 2 in those coordinates and in nothing else
+    shift = np.zeros(12)
+    shift[1], shift[3] = 0.5 * h * h * 5.0 * 0.3 * cv.G / (2.0 * 0.1), -0.5 * h * h * 0.3 * cv.G
+    np.testing.assert_allclose(once - order2, shift, rtol=0.0, atol=ONE_STEP_ATOL)
+    monkeypatch.setattr(ic.ImplicitContactStepper, "_split_repeat", real_repeat)
+    solves.clear()
+
+    monkeypatch.setattr(rattle.Stage2, "solve", failing_stage2)
+    stepper, fallen_back = run(2)
+    assert len(solves) == steps and stepper.order1_steps == steps
+    np.testing.assert_allclose(fallen_back, reference, rtol=0.0, atol=FALLBACK_ATOL)
+    assert fallen_back[9] - 0.1 * fallen_back[7] > 0.1     # still sliding at 0.08 s: friction rows active
+
+    monkeypatch.setattr(ic.ImplicitContactStepper, "_order1_step", lambda self, h, keep, failed: failed)
+    with pytest.raises(ic.StepFailure, match="second stage"):
         run(2)
