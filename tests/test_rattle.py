@@ -263,6 +263,19 @@ def test_order_2_lands_a_nearly_flat_superquadric_and_brings_it_to_rest(monkeypa
 
 
 FALLBACK_ATOL = 1e-12      # m, m/s: the same [GI] step on the same state, up to round-off
+FALLBACK_H, FALLBACK_STEPS = 0.002, 40
+
+
+def _sliding_ball(order):
+    """(stepper, positions and velocities after FALLBACK_STEPS) of a ball (r = 0.1 m) sliding
+    without spin at 2 m/s on mu = 0.3."""
+    world = dart_world(FALLBACK_H)
+    ground_box(world, mu=0.3)
+    ball = cv.ball(world, 0.3, 0.1, [2.0, 0.0, 0.0])
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
+    for _ in range(FALLBACK_STEPS):
+        stepper.step()
+    return stepper, np.concatenate([ball.getPositions(), ball.getVelocities()])
 
 
 def test_order_2_falls_back_to_order_1_when_stage_1_fails(monkeypatch):
@@ -270,18 +283,8 @@ def test_order_2_falls_back_to_order_1_when_stage_1_fails(monkeypatch):
     stage 1 made to fail on every step with contact, a ball sliding to rolling under order 2
     follows order 1's trajectory, every step counted in order1_steps; without the fallback the
     first step raises StepFailure."""
-    h, v0, steps = 0.002, 2.0, 40
 
-    def run(order):
-        world = dart_world(h)
-        ground_box(world, mu=0.3)
-        ball = cv.ball(world, 0.3, 0.1, [v0, 0.0, 0.0])
-        stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
-        for _ in range(steps):
-            stepper.step()
-        return stepper, np.concatenate([ball.getPositions(), ball.getVelocities()])
-
-    _, reference = run(1)
+    _, reference = _sliding_ball(1)
     real_stage1 = ic.ImplicitContactStepper._stage1
 
     def failing_stage1(self, state, pairs, joints, t0):
@@ -290,14 +293,14 @@ def test_order_2_falls_back_to_order_1_when_stage_1_fails(monkeypatch):
         return None, ic.StepReport(False, 0, np.inf, "MAX_ITERATIONS", (), t0, 1, "stage 1 made to fail", 0)
 
     monkeypatch.setattr(ic.ImplicitContactStepper, "_stage1", failing_stage1)
-    stepper, fallen_back = run(2)
-    assert stepper.order1_steps == steps
+    stepper, fallen_back = _sliding_ball(2)
+    assert stepper.order1_steps == FALLBACK_STEPS
     np.testing.assert_allclose(fallen_back, reference, rtol=0.0, atol=FALLBACK_ATOL)
     assert fallen_back[9] - 0.1 * fallen_back[7] > 0.1     # still sliding at 0.08 s: friction rows active
 
     monkeypatch.setattr(ic.ImplicitContactStepper, "_order1_step", lambda self, h, keep, failed: failed)
     with pytest.raises(ic.StepFailure):
-        run(2)
+        _sliding_ball(2)
 
 
 ONE_STEP_ATOL = 1e-9       # m, rad, m/s: one order-1 step among order-2 steps, against its predicted shift
@@ -310,18 +313,8 @@ def test_order_2_falls_back_to_order_1_when_stage_2_fails(monkeypatch):
     step raises StepFailure; a stage 2 of the repeat path (_split_repeat) that fails once costs
     one order-1 step."""
     from implicit_contact import rattle
-    h, v0, steps = 0.002, 2.0, 40
 
-    def run(order):
-        world = dart_world(h)
-        ground_box(world, mu=0.3)
-        ball = cv.ball(world, 0.3, 0.1, [v0, 0.0, 0.0])
-        stepper = ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
-        for _ in range(steps):
-            stepper.step()
-        return stepper, np.concatenate([ball.getPositions(), ball.getVelocities()])
-
-    _, reference = run(1)
+    _, reference = _sliding_ball(1)
     solves = []
 
     def failing_stage2(self, options, converged_at=None, budget=None):
@@ -334,7 +327,7 @@ def test_order_2_falls_back_to_order_1_when_stage_2_fails(monkeypatch):
                              "", 0, 0)
 
     real_solve, real_repeat = rattle.Stage2.solve, ic.ImplicitContactStepper._split_repeat
-    _, order2 = run(2)
+    _, order2 = _sliding_ball(2)
     repeated = []
 
     def failing_once(self, options, converged_at=None, budget=None):
@@ -350,23 +343,24 @@ def test_order_2_falls_back_to_order_1_when_stage_2_fails(monkeypatch):
 
     monkeypatch.setattr(rattle.Stage2, "solve", failing_once)
     monkeypatch.setattr(ic.ImplicitContactStepper, "_split_repeat", split_repeat)
-    stepper, once = run(2)
+    stepper, once = _sliding_ball(2)
     assert (10, True) in repeated and stepper.order1_steps == 1      # the 10th stage 2 was the repeat path's
     # that one step moved the positions with its end velocity, order 2's with the mean: under the
     # sliding ball's constant accelerations (-mu g along x, spin-up 5 mu g / (2 r) about y) the
     # runs differ by h^2 a / 2 in those coordinates and in nothing else
     shift = np.zeros(12)
+    h = FALLBACK_H
     shift[1], shift[3] = 0.5 * h * h * 5.0 * 0.3 * cv.G / (2.0 * 0.1), -0.5 * h * h * 0.3 * cv.G
     np.testing.assert_allclose(once - order2, shift, rtol=0.0, atol=ONE_STEP_ATOL)
     monkeypatch.setattr(ic.ImplicitContactStepper, "_split_repeat", real_repeat)
     solves.clear()
 
     monkeypatch.setattr(rattle.Stage2, "solve", failing_stage2)
-    stepper, fallen_back = run(2)
-    assert len(solves) == steps and stepper.order1_steps == steps
+    stepper, fallen_back = _sliding_ball(2)
+    assert len(solves) == FALLBACK_STEPS and stepper.order1_steps == FALLBACK_STEPS
     np.testing.assert_allclose(fallen_back, reference, rtol=0.0, atol=FALLBACK_ATOL)
     assert fallen_back[9] - 0.1 * fallen_back[7] > 0.1     # still sliding at 0.08 s: friction rows active
 
     monkeypatch.setattr(ic.ImplicitContactStepper, "_order1_step", lambda self, h, keep, failed: failed)
     with pytest.raises(ic.StepFailure, match="second stage"):
-        run(2)
+        _sliding_ball(2)
