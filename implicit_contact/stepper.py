@@ -542,6 +542,7 @@ class ImplicitContactStepper:
         MAX_ITERATIONS even at h / 16) where order 1 takes the same state in one solve; guarded by
         tests/test_rattle.py::test_order_2_falls_back_to_order_1_when_stage_1_fails (stage 2:
         _split_end)."""
+        self._ctx = None                      # (_gi_step's repeat path must not take a split step's)
         self._order1_fallback = True          # (_problem: [GI]'s skeleton tables, not stage 1's)
         try:
             report = self._gi_step(h, keep)
@@ -734,7 +735,7 @@ class ImplicitContactStepper:
         residual, contacts) of the step, or the StepReport of the order-1 step taken in its place
         when stage 2 fails (_order1_step: DART back at l first; its report, failed or not)."""
         w = self._world
-        q_l, v_l = w.Q.copy(), w.V.copy()
+        v_l = w.V.copy()
         hf = self._to_end_positions(u, h)
         v_next, second = self._stage2_step(first, u, hf, joints, t0, h)
         if not isinstance(second, StepReport):
@@ -744,14 +745,14 @@ class ImplicitContactStepper:
         # (example-robot-data) landing on the edges of its four calf boxes at t = 0.103 s, a
         # stage 2 whose Jacobian has 5 null singular values (two vertex rows a foot), stalled at
         # natural residuals 1e-10..1e-6 at every h; tests/test_rattle.py::
-        # test_order_2_falls_back_to_order_1_when_stage_2_fails
+        # test_order_2_falls_back_to_order_1_when_stage_2_fails. (w.Q still holds q at l: stage 2's
+        # forces read it there, split_end_forces.)
         for s, rec in enumerate(self.scene.skeletons):
             k, o = w.sk_nv[s], w.sk_voff[s]
             if k:
-                rec.skeleton.setPositions(q_l[o:o + k])
+                rec.skeleton.setPositions(w.Q[o:o + k])
                 rec.skeleton.setVelocities(v_l[o:o + k])
         w.raw_valid = False
-        self._ctx = None                      # (the repeat path's context is a split step's)
         return self._order1_step(h, keep, second)
 
     def _to_end_positions(self, u, h):

@@ -317,14 +317,14 @@ def test_order_2_falls_back_to_order_1_when_stage_2_fails(monkeypatch):
     _, reference = _sliding_ball(1)
     solves = []
 
-    def failing_stage2(self, options, converged_at=None, budget=None):
-        solves.append(1)
-        return failed(self)
-
     def failed(self):
         x = self.start()
         return ncp.McpResult(x, np.zeros_like(x), ncp.Status.MAX_ITERATIONS, 50, 1.0, (), "stage 2 made to fail",
                              "", 0, 0)
+
+    def failing_stage2(self, options, converged_at=None, budget=None):
+        solves.append(1)
+        return failed(self)
 
     real_solve, real_repeat = rattle.Stage2.solve, ic.ImplicitContactStepper._split_repeat
     _, order2 = _sliding_ball(2)
