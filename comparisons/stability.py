@@ -1479,7 +1479,7 @@ def main(argv=None) -> StudyResult:
     parser.add_argument("--only", default="", help="run only cases whose 'family label stepper' contains this")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT})")
     parser.add_argument("--order", type=int, choices=(1, 2), default=1,
-                        help="the implicit stepper's StepperOptions.order (2: rattle.py; it refuses quasi-rigid layers)")
+                        help="the implicit stepper's StepperOptions.order (2: rattle.py)")
     args = parser.parse_args(argv)
     os.environ[ORDER_ENV] = str(args.order)
     mode = "quick" if args.quick else "full" if args.full else "default"

@@ -267,7 +267,7 @@ class StepProblem:
             pair_i[k] = [spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
                          int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
                          int(sl.sigma >= 0), int(sl.p_r >= 0),
-                         rc.RIGID if comp is None else (rc.MIDPOINT if comp.scheme == "midpoint" else rc.PAPER),
+                         _layer_scheme(spec),
                          spec.compliant_side, c0, end - c0,
                          rel(sl.a1[0]), len(sl.a1), rel(sl.a2[0]), len(sl.a2), rel(sl.l1[0]), rel(sl.l2[0]),
                          rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
@@ -362,9 +362,9 @@ class StepProblem:
                 pf[T_at:T_at + 9] = T.ravel()
             comp = spec.compliance
             if comp is not None:
-                pf[rc.Q_K], pf[rc.Q_C], pf[rc.Q_DMAX] = comp.k_n, comp.c_n, comp.delta_max
+                pf[rc.Q_K], pf[rc.Q_C], pf[rc.Q_DMAX] = comp.k_n, spec.layer_share * comp.c_n, comp.delta_max
                 pf[rc.Q_DPREV] = spec.delta_prev
-            pf[rc.Q_H] = h
+            pf[rc.Q_H] = spec.layer_share * h         # (eq 49's h and c: a share of the step's layer impulse)
             split = spec.start_frame is not None
             t.pair_i[k, rc.P_SPLIT] = int(split)
             pf[rc.Q_N0:rc.NPF] = spec.start_frame if split else 0.0
@@ -608,3 +608,12 @@ _EMPTY = np.zeros(0)
 _EMPTY_I = np.zeros(0, np.int64)
 _EMPTY2 = np.zeros((0, 0))
 _EYE = {2: np.eye(2), 3: np.eye(3)}
+
+
+def _layer_scheme(spec) -> int:
+    """rows/contact.py's form of eq (49) for a pair: rigid, [GI]'s as printed, or the midpoint
+    rule (Compliance.scheme = "midpoint", and order 2's first stage: rattle.py, eq R11)."""
+    comp = spec.compliance
+    if comp is None:
+        return rc.RIGID
+    return rc.MIDPOINT if (comp.scheme == "midpoint" or spec.layer_share != 1.0) else rc.PAPER

@@ -50,6 +50,8 @@ class PairSpec:
     compliance: object = None  # an ic.Compliance: a quasi-rigid pair (rows/contact.py, [GI] Sec. 5)
     compliant_side: int = 2    # which body carries the deformed layer
     delta_prev: float = 0.0    # its normal deflection at l
+    layer_share: float = 1.0   # the share of the step's layer impulse this solve applies (order 2's
+    #                            first stage: 1/2 of the midpoint rule's, rattle.py eq R11)
     patch: bool = False        # friction's e_r is the contact patch's at l (patch.py), per step
     normal_l: np.ndarray | None = None   # the pair's unit normal at l (memory or static seed)
     start_frame: np.ndarray | None = None  # order 2's first stage (rattle.py): n, t, o and the

@@ -286,7 +286,7 @@ def warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, mem, 
             z0[c0 + pi[rc.P_DN]] = dn
             dprev = pf[rc.Q_DPREV]
             stiff = 0.5 * (dn + dprev) if pi[rc.P_COMP] == rc.MIDPOINT else dn
-            spring = h * pf[rc.Q_K] * stiff + pf[rc.Q_C] * (dn - dprev)
+            spring = pf[rc.Q_H] * pf[rc.Q_K] * stiff + pf[rc.Q_C] * (dn - dprev)
             p_nr = 0.0
             if pi[rc.P_PNR] >= 0:
                 p_nr_old = sp_old * z_old[o0 + oi[rc.P_PNR]] if oi[rc.P_PNR] >= 0 else 0.0

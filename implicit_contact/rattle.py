@@ -60,6 +60,39 @@ velocity rings. Such a damper (h D_i / 2 > STIFF_DAMPER M_ii, M at q+) acts at v
 that is a factor 1 / (1 + a)^2, L-stable and first order in that dof (step_kernels.
 split_end_forces).
 
+Quasi-rigid layers ([GI] Sec. 5; rows/contact.py, eqs 35, 49, 55: a spring k and damper c over
+a rigid core, deflection delta, largest deflection delta_max). The layer's impulse over the step
+is the implicit midpoint rule's, with delta+ the deflection at q+ (stage 1's unknown),
+
+    S = h k (delta + delta+) / 2 + c (delta+ - delta)                                  (R11)
+
+whatever Compliance.scheme says (it selects order 1's form of eq 49). Stage 1 applies half of it
+with the core's impulse: p_n = p_nr + S / 2 in (R1) (eq 49 with h / 2 and c / 2 in place of h and
+c: PairSpec.layer_share), and the core's position-level Signorini condition (55) at q+. Stage 2
+applies the other half, known after stage 1, and the core's total impulse P_c:
+
+    P_n = S + P_c,   0 <= P_c _|_ n . v_rel(v+) >= 0 if the core is closed at q+
+                     (delta_max - delta+ <= tolerance or p_nr > 0), else P_c = 0       (R12)
+    P's friction: (R7) on the whole P_n                                                (R13)
+
+For a linear undamped layer in a fixed frame the two halves make u = (v + v+) / 2, q+ - q = h u:
+the implicit midpoint rule, which keeps the energy of flight and spring (up to the engaging and
+releasing within a step), and (R12) makes a hit on the core plastic (order 1's "midpoint" scheme
+bounces off it instead, params.Compliance). As for a joint damper (R10), the midpoint rule rings
+when the layer's damper is stiff for the step, a = h c / (2 m) > STIFF_DAMPER (m: the pair's
+reduced mass): a ball landing on a critically damped layer of k = 1e8 N/m (a = 10 at h = 1e-3)
+bounced off 4 mm high where the converged run rises 0.17 mm. Such a layer's damper acts at v+
+in stage 2, as a stiff joint damper's (R10): stage 2's half of c (delta+ - delta) / 2 in S is
+replaced by the damper's impulse at the end velocity,
+
+    P_n = S - c (delta+ - delta) / 2 - h/2 c n . v_rel(v+) + P_c                      (R14)
+
+(stage 1's half, c (delta+ - delta) / 2 = h/2 c (the compression rate at u), is backward Euler
+already): a factor 1 / (1 + a)^2 on the layer's velocity, L-stable, first order in the layer,
+and a body at rest on it keeps v+ = 0. Across the layer the frame is split like a rigid
+pair's (R1, R5). A compliant face on a face stays one point in stage 2 (no patch vertices: its
+load is the layer's, known, not a velocity-level unknown to be spread).
+
 The start frame of a pair (n0, t0, o0 and the levers r_b0 = a_b - p_b at l) comes from the last
 step's solution when the pair persists (its closest points at l+1 are the points at l now), else
 from a static closest-point solve at l (stepper.py).
@@ -96,6 +129,12 @@ from .memory import _tangents
 from .rows import velocity as rv
 
 STIFF_DAMPER = 1.0   # a = h D_i / (2 M_ii) above which a joint damper acts at v+ in stage 2 (R10)
+
+
+def stiff_layer(compliance, h, mass) -> bool:
+    """Whether a quasi-rigid layer's damper is stiff for the step, h c / (2 mass) > STIFF_DAMPER
+    (mass: the pair's reduced mass): its stage-2 half then acts at v+ (R14)."""
+    return h * compliance.c_n > 2.0 * STIFF_DAMPER * mass
 
 
 def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
@@ -139,6 +178,10 @@ class ClosedPair:
     known: bool = False    # no unknowns: only its R1 enters (R5) (a patch's stage-1 point, see Stage2)
     start_n: float = -1.0  # the start of its P_n (default 2 R1_n, the trapezoidal guess R2 = R1)
     vertices: int = 0      # a patch's friction point: this many frictionless vertex pairs follow
+    load: float = 0.0      # a quasi-rigid pair: its layer's impulse over the step S (R11), in units of
+    #                        s_p; its P_n unknown is then the core's, P_n = S + P_c (R12)
+    core_open: bool = False  # a quasi-rigid pair whose core is open at q+: P_c = 0 (R12)
+    damp: float = 0.0      # a stiff layer's damper at v+: P_n -= damp n . v_rel(v+) (R14; s_p s/m)
 
     @property
     def friction(self) -> bool:
@@ -159,7 +202,8 @@ class Stage2:
     followed by one frictionless pair per vertex of its patch at q+ (rows/velocity.py), so that the
     normal load can move within the patch (a single point cannot resist tipping at the velocity
     level) while friction sees the patch's whole load; its stage-1 impulse R1 is a known pair
-    (known=True) whose W^T R1 moves into the right-hand side."""
+    (known=True) whose W^T R1 moves into the right-hand side. A quasi-rigid pair's unknown P_n is
+    its core's impulse, its layer's (ClosedPair.load) added in the rows (R12, R13)."""
 
     def __init__(self, skeletons, bodies, pairs, joints=()):
         """joints: per joint row (g over all of x's velocity columns (nv,), unit, lower, upper,
@@ -207,9 +251,9 @@ class Stage2:
             nt = (cp.dim - 1) if cp.friction else 0
             nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
             ns = 1 if cp.friction else 0
-            self.pi[k] = (at, nt, nr, ns, cp.vertices)
-            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1)
-            lo.append([-np.inf if cp.vertices else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
+            self.pi[k] = (at, nt, nr, ns, cp.vertices, int(cp.core_open))
+            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1, cp.load, cp.damp)
+            lo.append([-np.inf if (cp.vertices or cp.core_open) else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
             hi.append([np.inf] * (1 + nt + nr + ns))
             at += 1 + nt + nr + ns
         nj = len(joints)
@@ -240,7 +284,7 @@ class Stage2:
         x = np.zeros(self.n)
         for c, k in self._blocks:      # M is block diagonal over the skeletons
             x[c:c + k] = self.u[c:c + k] + np.linalg.solve(self.M[c:c + k, c:c + k], self.hf[c:c + k])
-        for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
+        for cp, (c, nt, nr, ns, _, _) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + 1 + nt] = 2.0 * cp.R1[:1 + nt]
             if nr:
@@ -256,7 +300,7 @@ class Stage2:
     def cold_start(self) -> np.ndarray:
         """start() with zero impulses (sigma kept)."""
         x = self.start()
-        for cp, (c, nt, nr, ns, _) in zip(self.pairs, self.pi):
+        for cp, (c, nt, nr, ns, _, _) in zip(self.pairs, self.pi):
             x[c:c + 1 + nt + nr] = 0.0
         x[self.jcol] = 0.0
         return x
@@ -308,16 +352,23 @@ class Stage2:
         return _charged(budget, options, lambda o: ncp.solve_mcp(self.fun, self.jac, x, self.lower, self.upper, o))
 
     def impulses(self, x):
-        """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p."""
+        """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p (a quasi-rigid pair's
+        P_n: its layer's and its core's)."""
         out = []
-        for (c, nt, nr, ns, _) in self.pi:
+        for k, (cp, (c, nt, nr, ns, _, _)) in enumerate(zip(self.pairs, self.pi)):
             P = np.zeros(4)
-            P[0] = x[c]
+            P[0] = x[c] + cp.load - cp.damp * float(self.G[k, 0] @ x[:self.nv])
             P[1:1 + nt] = x[c + 1:c + 1 + nt]
             if nr:
                 P[3] = x[c + 1 + nt]
             out.append(P)
         return out
+
+
+    def core_impulses(self, x):
+        """Per closed pair the normal impulse of its rigid core (R12; a rigid pair's P_n), in
+        units of s_p."""
+        return [float(x[c]) for c in self.pi[:, 0]]
 
 
 def _charged(budget, options, solve):

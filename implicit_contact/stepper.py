@@ -79,7 +79,7 @@ class StepperOptions:
         side); False leaves such pairs without torsion rows.
     order: 1 is [GI] as printed (first order); 2 the split step of rattle.py (second order in
         free flight and persistent contact; two solves per step; joint springs and dampers by
-        the implicit midpoint rule; no quasi-rigid layers yet, refused at construction).
+        the implicit midpoint rule, and quasi-rigid layers too, whatever Compliance.scheme says).
     max_step_iterations: the Newton iterations one call of step() may spend over all its solves,
         recoveries and halvings (budget.py); when they are spent the step fails at once, the world
         unchanged (StepFailure, or a failed report under on_failure="warn"). None: no limit.
@@ -270,8 +270,6 @@ class ImplicitContactStepper:
         self._order1_fallback = False   # order 2 taking one step as [GI]'s (_order1_step)
         self.order1_steps = 0           # order 2: the (sub)steps of completed steps taken by that fallback
         self._check_state_finite()
-        if self.options.order == 2:
-            self._check_order2()
         if self.options.check_penetration_at_start:
             self._check_initial_overlap()
 
@@ -347,7 +345,10 @@ class ImplicitContactStepper:
     def _trapezoidal_skeletons(self) -> set:
         """All mobile skeletons when any quasi-rigid layer of the world uses the "midpoint"
         scheme (ic.Compliance): the energy-consistent variant integrates every position with the
-        trapezoidal rule, q+ = q + h (v + v+)/2, in flight too (exact under gravity); else none."""
+        trapezoidal rule, q+ = q + h (v + v+)/2, in flight too (exact under gravity); else none.
+        None in order 2's split step (its q+ = q + h u is already the midpoint rule's, rattle.py)."""
+        if self._split_stage1:
+            return set()
         if self._midpoint is None:
             layers = [o.compliance for o in self._objects if o.compliance is not None]
             layers += list(self._pair_compliance.values())
@@ -608,14 +609,11 @@ class ImplicitContactStepper:
                           t0 + h, 1, result.message, problem.layout.n)
 
     # -- order 2: the split step (rattle.py) ---------------------------------------------------------
-    def _check_order2(self):
-        """Refuse at construction what the split step does not model yet, with what to do."""
-        why = []
-        if any(o.compliance is not None for o in self._objects):
-            why.append("quasi-rigid layers")
-        if why:
-            raise ValueError("StepperOptions(order=2) does not support " + " or ".join(why) +
-                             " yet; use order=1 ([GI]'s step) for this world")
+    @property
+    def _split_stage1(self) -> bool:
+        """Whether the MCP being built is order 2's first stage (not [GI]'s step: order 1, or order
+        2's fallback _order1_step)."""
+        return self.options.order == 2 and not self._order1_fallback
 
     def _split_step(self, h, keep=frozenset()) -> StepReport:
         """One step of order 2 (rattle.py): stage 1, [GI]'s MCP for the half-step velocity u with
@@ -919,6 +917,21 @@ class ImplicitContactStepper:
             sigma = float(z[sl.sigma]) if sl.sigma >= 0 else 0.0
             stage1 = rattle.ClosedPair(tuple(ends), (rep[k, rc.R_A1:rc.R_A1 + 3].copy(), rep[k, rc.R_A2:rc.R_A2 + 3].copy()),
                                        n, t, o, spec.dim, mu, fr.e_t, fr.e_o, e_r, spec.impulse_scale, R1, sigma)
+            if spec.compliance is not None:
+                # the layer's impulse over the step, twice stage 1's half, and its core (R11, R12);
+                # a damper stiff for the step acts at v+ in stage 2 (R14)
+                p_nr = float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0
+                comp, dn = spec.compliance, float(z[sl.dn])
+                core_open = not (p_nr > 0.0 or comp.delta_max - dn <= tol)
+                load, damp = 2.0 * (p_n - p_nr), 0.0
+                if rattle.stiff_layer(comp, problem.h, self._reduced_mass(spec)):
+                    dprev = float(problem.tables.pair_f[k, rc.Q_DPREV])    # (the repeat path's too)
+                    load -= 0.5 * comp.c_n * (dn - dprev) / spec.impulse_scale
+                    damp = 0.5 * problem.h * comp.c_n / spec.impulse_scale
+                cps.append(replace(stage1, load=load, damp=damp, core_open=core_open,
+                                   start_n=0.0 if core_open else 2.0 * p_nr))
+                closed.append((k, 1))
+                continue
             X = self._patch_vertices(spec, n) if landing.faceted_pair(spec) else None
             if X is None:
                 cps.append(stage1)
@@ -948,6 +961,11 @@ class ImplicitContactStepper:
                     jdata.append((g, full.unit[r], rows.lower[r], rows.upper[r], rows.unit[r] * lam1[r]))
         return rattle.Stage2(skeletons, bodies, cps, jdata), closed, jrows
 
+    def _reduced_mass(self, spec) -> float:
+        """m1 m2 / (m1 + m2) of a pair's mobile bodies (one mobile body: its mass)."""
+        return 1.0 / sum(1.0 / self._masses[o.body] for o in spec.objects
+                         if self.scene.bodies[o.body].kind != adapter.FIXED)
+
     def _patch_vertices(self, spec, n):
         """The vertices (m, 3) of a faceted pair's patch at q+ (DART's poses now) on its contact
         plane of normal n, or None if it is a point."""
@@ -960,15 +978,16 @@ class ImplicitContactStepper:
         """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2);
         lazily made (_LazyContacts) if stage 1's are."""
         v = x[:stage2.nv]
-        P_all = stage2.impulses(x)
+        P_all, cores = stage2.impulses(x), stage2.core_impulses(x)
         updates, at = {}, 0
         for k, count in closed:
             # the pair, or a patch's friction point (its P_n is its vertices' sum) followed by them
             cp, G, P = stage2.pairs[at], stage2.G[at], P_all[at]
+            core = cores[at]
             at += count
             slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
             updates[k] = dict(p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2], p_r=cp.s_p * cp.e_r * P[3],
-                              slip=slip, p_core=cp.s_p * P[0])
+                              slip=slip, p_spring=cp.s_p * (P[0] - core), p_core=cp.s_p * core)
         if isinstance(contacts, _LazyContacts):
             contacts.updates = updates
             return contacts
@@ -1614,7 +1633,7 @@ class ImplicitContactStepper:
                                       for sp in specs),
                      tuple((sp.body, sp.friction.torsion) for sp in supports),
                      tuple(None if jr is None else jr.keys for jr in att.joints))
-        stage1 = self.options.order == 2 and not self._order1_fallback
+        stage1 = self._split_stage1
         key = (signature, tuple(body_ids), h, stage1)
         cached = self._problems.get(key)
         if cached is None:
@@ -1707,6 +1726,8 @@ class ImplicitContactStepper:
         delta_prev = last["deflection"] if last is not None else 0.0
         spec = fm.PairSpec(key, o1, o2, dim, friction, with_friction, 0, axis, s_p, (first, second),
                            compliance, side, delta_prev)
+        if compliance is not None and self._split_stage1:
+            spec.layer_share = 0.5      # order 2's first stage: half the layer's impulse (rattle.py, R11)
         if last is not None:
             spec.normal_l = last["normal"]
         if with_friction:

@@ -125,9 +125,11 @@ class Record:
 
 
 def simulate(delta_max: float, duration: float = 1.0, h: float = H, scheme: str = "paper",
-             damping: float = 0.0, k: float = K) -> Record:
+             damping: float = 0.0, k: float = K, order: int = 1) -> Record:
+    """order: StepperOptions.order (2: the split step, whose layer takes the midpoint rule
+    whatever the scheme, implicit_contact/rattle.py)."""
     world = build_world(delta_max, h, scheme, damping, k)
-    stepper = ic.ImplicitContactStepper(world)
+    stepper = ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=order))
     traj = run(world, stepper, duration)
     t, q, v, ke = traj.arrays()
     ps, pc, dn = [0.0], [0.0], [0.0]

@@ -1,6 +1,7 @@
 """Order 2 (rattle.py): the split stage's rows against central differences, observed orders in
 free flight, on a pendulum and on a rocking ellipsoid against exact references, an inelastic
-impact, slide-to-roll at 5/7 v0, and the refusals."""
+impact, slide-to-roll at 5/7 v0, quasi-rigid layers (Example 3's bounce and core hit, a stiff
+layer, friction on a layer), joint springs and dampers, and the fallbacks to order 1."""
 import numpy as np
 import pytest
 
@@ -10,6 +11,7 @@ from implicit_contact import ncp
 from implicit_contact import shapes as shp
 from implicit_contact.params import Friction
 from implicit_contact.testing import dart_world, ground_box, jacobian_error, random_pair_problem
+from scenes import disc_on_quasi_rigid_plane as qr
 
 H = 0.01
 EPS_FD = 1e-6
@@ -113,15 +115,118 @@ def test_order_2_slide_to_roll_ends_at_five_sevenths():
     assert abs(v[1] * 0.1 - v[3]) < 1e-6                          # rolling: omega_y r = v_x
 
 
-def test_order_2_refuses_quasi_rigid_layers_with_a_sentence():
-    world = dart_world(0.01)
-    ground = ground_box(world)
-    ic.attach(ground, shp.HalfSpace([0, 0, 1], 0.0), compliance=ic.Compliance(1e4, 10.0, 0.01))
-    cv.ball(world, 0.3, 0.2, [0.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match=r"order=2\) does not support quasi-rigid layers"):
-        ic.ImplicitContactStepper(world, options=ic.StepperOptions(order=2))
+def test_order_must_be_1_or_2():
     with pytest.raises(ValueError, match="order must be 1"):
         ic.StepperOptions(order=3)
+
+
+# -- quasi-rigid layers (rattle.py, R11-R14) -------------------------------------------------------
+SAME_ATOL = 1e-10          # m: the same discretisation on the same state, up to round-off
+PLASTIC_V_ATOL = 1e-10     # m/s: the normal velocity left after a plastic hit on the core
+ENERGY_ATOL = 1e-9         # J: Example 3's energy (10.6 J) against the plastic stop's, and kept after
+
+
+def test_order_2_layer_is_the_midpoint_rule_in_a_fixed_frame():
+    """A frictionless disc bouncing on Example 3's undamped layer (no core): with the contact frame
+    fixed the split step's two half layer impulses (R11) make the implicit midpoint rule, that is
+    order 1 with the "midpoint" scheme, step for step, and its energy and peak deflection."""
+    h = 1e-3
+    two = qr.simulate(1.0, duration=0.45, h=h, scheme="paper", order=2)
+    mid = qr.simulate(1.0, duration=0.45, h=h, scheme="midpoint")
+    assert np.max(np.abs(two.y - mid.y)) <= SAME_ATOL
+    assert np.max(np.abs(two.deflection - mid.deflection)) <= SAME_ATOL
+    assert abs(two.energy[-1] - two.energy[0]) < 0.5 * qr.K * (qr.V_CONTACT * h) ** 2
+    assert two.deflection.max() == pytest.approx(qr.analytic_events(1.0)["peak"], rel=1e-3)
+
+
+def test_order_2_core_hit_is_plastic_in_one_step():
+    """Example 3 with a core at delta_max = 0.05 m: the core's impulse is stage 2's Newton law
+    (R12), so the first core step ends at delta_max with no normal velocity and the energy of the
+    plastic stop; then the spring lifts the disc off and the energy stays. Order 1's "midpoint"
+    scheme bounces off the core (0.25 m/s); its "paper" scheme takes two steps to stop."""
+    h = 1e-3
+    rec = qr.simulate(0.05, duration=0.36, h=h, order=2)
+    hit = np.nonzero(rec.p_core > 0)[0]
+    assert len(hit) == 1
+    k = hit[0]
+    assert abs(rec.t[k] - qr.analytic_events(0.05)["core"]) <= h
+    assert rec.deflection[k] == pytest.approx(0.05, abs=1e-9)
+    assert abs(rec.vy[k]) <= PLASTIC_V_ATOL
+    assert abs(rec.energy[k] - qr.energy_after_core_hit(0.05)) <= ENERGY_ATOL
+    assert np.max(np.abs(rec.energy[k:] - rec.energy[k])) <= ENERGY_ATOL
+    assert rec.vy[-1] > 0.5                       # lifted off the core
+    mid = qr.simulate(0.05, duration=0.36, h=h, scheme="midpoint")
+    assert mid.vy[qr.core_episode_end(mid.p_core)] > 0.1
+
+
+def _ball_on_layer(order, h, k, c, v0=0.0, z=None, mu=0.0, delta_max=np.inf):
+    """A 1 kg ball of radius 0.1 m (cv.ball) over a welded half-space z <= 0 with a quasi-rigid
+    layer (k, c, delta_max), friction mu on both; (world, ball, stepper)."""
+    import dartpy as dart
+    world = dart_world(h)
+    ground = dart.dynamics.Skeleton("ground")
+    _, body = ground.createWeldJointAndBodyNodePair()
+    ic.attach(body, shp.HalfSpace([0, 0, 1], 0.0), friction=Friction(mu),
+              compliance=ic.Compliance(k=k, c=c, delta_max=delta_max))
+    world.addSkeleton(ground)
+    ball = cv.ball(world, mu, cv.BALL_R if z is None else z, [v0, 0.0, 0.0])
+    return world, ball, ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
+
+
+STIFF_LAYER_K = 1e8        # N/m, critically damped: h c / (2 m) = 10 at h = 1e-3
+STIFF_LAYER_RISE = 2e-4    # m: the lift-off after landing of a converged run (h = 1e-5), 1.7e-4 m, + 15 %
+
+
+def test_order_2_stiff_layer_does_not_bounce(monkeypatch):
+    """A ball dropped 1 cm onto a critically damped layer stiff for the step: with the damper's
+    stage-2 half at v+ (R14) it lifts off no more than a converged run (h = 1e-5: 0.17 mm) and
+    settles at the static deflection m g / k at rest. With the midpoint rule alone (STIFF_DAMPER
+    = inf) the damper rings and the ball bounces off 4 mm high."""
+    from implicit_contact import rattle
+    c = 2.0 * np.sqrt(STIFF_LAYER_K)
+
+    def heights():
+        _, ball, stepper = _ball_on_layer(2, 1e-3, STIFF_LAYER_K, c, z=cv.BALL_R + 0.01, delta_max=0.01)
+        z = []
+        for _ in range(200):
+            report = stepper.step()
+            z.append(ball.getPositions()[5])
+        return np.array(z), report, ball.getVelocities()[5]
+    z, report, vz = heights()
+    static = 9.81 / STIFF_LAYER_K
+    landed = np.argmax(z < cv.BALL_R)
+    assert landed > 0 and z[landed:].max() < cv.BALL_R + STIFF_LAYER_RISE
+    assert report.contacts[0].deflection == pytest.approx(static, rel=1e-6)
+    assert z[-1] == pytest.approx(cv.BALL_R - static, abs=1e-12)
+    assert abs(vz) < 1e-9                                  # at rest: v+ = 0 (R14)
+    monkeypatch.setattr(rattle, "STIFF_DAMPER", np.inf)
+    z, _, _ = heights()
+    assert z[landed:].max() > cv.BALL_R + 1e-3
+
+
+SLIDE_ATOL = 1e-9          # m: the sliding ball's distance at two steps (order 2's slide is exact)
+
+
+def test_order_2_friction_on_a_layer_sees_the_whole_load():
+    """A ball sliding at 2 m/s onto a damped layer (k = 1e5 N/m, no core, mu = 0.3): the normal
+    load is the layer's alone, known after stage 1, and stage 2's friction acts on it (R13):
+    |P_t| = mu P_n while it slides, then it rolls at 5/7 v0. The distance in 0.5 s is the same at
+    h = 2e-3 and 5e-4 (order 1's differs by 4e-4: first order)."""
+    x = {}
+    for order in (1, 2):
+        for h in (2e-3, 5e-4):
+            _, ball, stepper = _ball_on_layer(order, h, 1e5, 300.0, v0=cv.BALL_V0, mu=cv.BALL_MU)
+            for i in range(int(round(0.5 / h))):
+                report = stepper.step()
+                if order == 2 and i * h < 0.15 and i > 0:     # sliding until 0.194 s
+                    (cr,) = report.contacts
+                    assert cr.p_spring == cr.p_n and cr.p_core == 0.0 and cr.p_n > 0.0
+                    assert np.hypot(cr.p_t, cr.p_o) == pytest.approx(cv.BALL_MU * cr.p_n, rel=1e-9)
+            v = np.array(ball.getVelocities())
+            assert abs(v[3] - 5.0 / 7.0 * cv.BALL_V0) < 1e-9
+            x[order, h] = float(ball.getPositions()[3])
+    assert abs(x[2, 2e-3] - x[2, 5e-4]) <= SLIDE_ATOL
+    assert abs(x[1, 2e-3] - x[1, 5e-4]) > 1e-4
 
 
 SPRING_ENERGY_REL = 1e-12     # the implicit midpoint rule keeps a linear oscillator's energy (round-off)
@@ -192,8 +297,10 @@ def test_order_2_example_2_events_agree_with_order_1():
 
 
 def _random_stage2(rng):
-    """Two free bodies (DART's world Jacobian I6) and a fixed one; three closed pairs: free/free
-    with torsion, free/fixed with friction, free/fixed frictionless."""
+    """Two free bodies (DART's world Jacobian I6) and a fixed one; five closed pairs: free/free
+    with torsion, free/fixed with friction, free/fixed frictionless, and two quasi-rigid pairs
+    with friction (a layer's known load and a damper at v+, R12-R14), one with its core closed,
+    one open."""
     from implicit_contact import rattle
 
     def frame():
@@ -209,11 +316,14 @@ def _random_stage2(rng):
         skeletons.append((A @ A.T + 6 * np.eye(6), rng.normal(size=6), rng.normal(size=6)))
     bodies = [(0, np.eye(6), rng.normal(size=3)), (6, np.eye(6), rng.normal(size=3))]
     pairs = []
-    for ends, mu, e_r in (((0, 1), 0.4, 0.05), ((1, -1), 0.3, 0.0), ((0, -1), 0.0, 0.0)):
+    for ends, mu, e_r, load, core_open in (((0, 1), 0.4, 0.05, 0.0, False), ((1, -1), 0.3, 0.0, 0.0, False),
+                                           ((0, -1), 0.0, 0.0, 0.0, False), ((1, -1), 0.5, 0.0, 1.3, False),
+                                           ((0, -1), 0.6, 0.0, 0.7, True)):
+        damp = 0.8 if load else 0.0       # (a stiff layer's damper at v+, R14)
         n, t, o = frame()
         R1 = np.r_[abs(rng.normal()) + 0.2, 0.1 * rng.normal(size=2), 0.1 * rng.normal() if e_r else 0.0]
         pairs.append(rattle.ClosedPair(ends, (rng.normal(size=3), rng.normal(size=3)), n, t, o, 3, mu, 1.0, 0.8,
-                                       e_r, 0.05, R1, 0.3))
+                                       e_r, 0.05, R1, 0.3, load=load, core_open=core_open, damp=damp))
     return rattle.Stage2(skeletons, bodies, pairs), bodies, pairs
 
 
@@ -234,6 +344,16 @@ def test_stage_2_rows_are_point_velocities_and_their_jacobian_matches_central_di
         np.testing.assert_allclose(G @ v, [cp.n @ vel, cp.t @ vel, cp.o @ vel, cp.n @ omega], rtol=0, atol=1e-12)
     x = stage.start() + 0.1 * rng.normal(size=stage.n)
     x[stage.nv:] = np.abs(x[stage.nv:]) + 0.2
+    # (R5) against its definition with the pairs' total impulses (a layer's load in P_n, R12)
+    P = stage.impulses(x)
+    assert P[3][0] == pytest.approx(x[stage.pi[3][0]] + 1.3 - 0.8 * stage.G[3, 0] @ x[:stage.nv], abs=1e-14)
+    force = stage.M @ (x[:stage.nv] - stage.u) - stage.hf
+    for cp, G, Pc in zip(pairs, stage.G, P):
+        dP = (Pc - cp.R1) * (1.0, cp.friction, cp.friction, cp.friction)   # (a frictionless pair: P_n alone)
+        force -= cp.s_p * (G[:3].T @ dP[:3] + cp.e_r * G[3] * dP[3])
+    F = stage.fun(x)
+    np.testing.assert_allclose(F[:stage.nv], stage.scale * force, rtol=0, atol=1e-12)
+    assert F[stage.pi[4][0]] == x[stage.pi[4][0]]          # an open core: no core impulse
     J = stage.jac(x)
     J_fd = np.column_stack([(stage.fun(x + EPS_FD * e) - stage.fun(x - EPS_FD * e)) / (2 * EPS_FD)
                             for e in np.eye(stage.n)])

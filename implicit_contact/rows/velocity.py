@@ -9,8 +9,8 @@ J_b = [A_w; A_v] (angular rows first), lever r_b = a_b - p_b and s_1 = -1, s_2 =
     G_c[3] += s_b n^T A_w
 
 Unknowns x = [v+; per pair P_n, (P_t, P_o), (P~_r), (sigma)] (impulses in units of s_p); pair
-table pi = (first column, tangent unknowns, torsion unknown, sigma), pf = (mu, e_t, e_o, e_r,
-s_p, R1_n, R1_t, R1_o, R1~_r). Rows:
+table pi = (first column, tangent unknowns, torsion unknown, sigma, patch vertices, core open),
+pf = (mu, e_t, e_o, e_r, s_p, R1_n, R1_t, R1_o, R1~_r, L, beta). Rows:
 
     M (v+ - u) - h/2 f - sum_c s_p W_c^T (P_c - R1_c)                   (R5), scaled by 1/diag(M)
     n . v_rel                         complementary to P_n >= 0        (R6)
@@ -27,6 +27,12 @@ Joint rows (joint_rows.py) at the velocity level, after the pairs: row r with di
 (Coulomb friction: the total impulse u_r lambda_r within h f and opposite the end velocity; a
 limit closed at q+ and a mimic relation: the end velocity along g_r is held at 0, resp. >= 0.)
 
+A quasi-rigid pair (rattle.py, R11-R14) has a known normal load L, its layer's impulse over the
+step, and for a stiff damper a part at the end velocity, -beta n . v_rel (R14): its normal
+unknown is the core's impulse P_n,core and the pair's normal impulse is
+L - beta n . v_rel + P_n,core, in (R5) and in the friction rows (R7) alike. Its core closed at q+: (R6) for
+P_n,core; open (pi's V_OPEN = 1): the row P_n,core = 0 (free bounds). A rigid pair has L = 0.
+
 A patch (a face on a face; pi's V_NVERT = m > 0) is its friction point c followed by its m
 vertices, frictionless pairs whose normal impulses carry the patch's normal load (so that the
 load can move within the patch). The point's P_n is then their sum, the row P_n - sum_i P_n,i = 0
@@ -37,11 +43,11 @@ from __future__ import annotations
 from .._jit import kernel
 
 # pair_i columns
-V_COL, V_NT, V_NR, V_NS, V_NVERT = 0, 1, 2, 3, 4
-NVI = 5
+V_COL, V_NT, V_NR, V_NS, V_NVERT, V_OPEN = 0, 1, 2, 3, 4, 5
+NVI = 6
 # pair_f columns
-V_MU, V_ET, V_EO, V_ER, V_SP, V_R1 = 0, 1, 2, 3, 4, 5
-NVF = 9
+V_MU, V_ET, V_EO, V_ER, V_SP, V_R1, V_LOAD, V_DAMP = 0, 1, 2, 3, 4, 5, 9, 10
+NVF = 11
 
 
 @kernel
@@ -96,6 +102,13 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
         nvert = pi[cp, V_NVERT]
         m = 1 + nt + nr
         s_p, e_r = pf[cp, V_SP], pf[cp, V_ER]
+        # the pair's normal impulse x[c] + L - beta n . v_rel (a quasi-rigid pair; else x[c])
+        beta = pf[cp, V_DAMP]
+        wn = 0.0
+        if beta != 0.0:
+            for i in range(nv):
+                wn += G[cp, 0, i] * x[i]
+        load = pf[cp, V_LOAD] - beta * wn
         # (R5): the impulse columns n, t, (o), (torsion), and their rows of G (a patch's point:
         # no normal column, its vertices carry the load)
         for q in range(1 if nvert > 0 else 0, m):
@@ -103,11 +116,16 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             w = s_p * (e_r if grow == 3 else 1.0)
             r1 = pf[cp, V_R1 + grow]
             dP = x[c + q] - r1
+            if q == 0:
+                dP += load
             for i in range(nv):
                 g = G[cp, grow, i] * w
                 F[i] -= g * dP
                 if need_jac:
                     J[i, c + q] = -g
+                    if q == 0 and beta != 0.0:
+                        for j in range(nv):
+                            J[i, j] += g * beta * G[cp, 0, j]
         if nvert > 0:
             # a patch's point: P_n = the sum of its vertices' normal impulses
             acc = x[c]
@@ -118,6 +136,11 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
                 if need_jac:
                     J[c, pi[k, V_COL]] = -1.0
             F[c] = acc
+        elif pi[cp, V_OPEN] > 0:
+            # a quasi-rigid pair whose core is open at q+: no core impulse
+            F[c] = x[c]
+            if need_jac:
+                J[c, c] = 1.0
         else:
             # (R6)
             acc = 0.0
@@ -130,7 +153,7 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             continue
         # (R7), [GI] (21)-(22)
         mu = pf[cp, V_MU]
-        p_n = x[c]
+        p_n = x[c] + load
         sigma = x[c + m]
         cone = (mu * p_n) ** 2
         for q in range(1, m):
@@ -148,7 +171,7 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             cone -= x[r] * x[r] / e2
             if need_jac:
                 for i in range(nv):
-                    J[r, i] = wgt * mu * p_n * G[cp, grow, i]
+                    J[r, i] = wgt * mu * (p_n * G[cp, grow, i] - beta * slip * G[cp, 0, i])
                 J[r, c] = wgt * mu * slip
                 J[r, r] = sigma
                 J[r, c + m] = x[r]
@@ -156,6 +179,8 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
         F[c + m] = cone
         if need_jac:
             J[c + m, c] = 2.0 * mu * mu * p_n
+            for i in range(nv):
+                J[c + m, i] = -2.0 * mu * mu * p_n * beta * G[cp, 0, i]
     for r in range(jg.shape[0]):
         c = jcol[r]
         acc = 0.0
