@@ -263,7 +263,6 @@ class StepProblem:
             c0 = int(sl.rows_geo[0])
             end = max(sl.p_n, sl.sigma, sl.p_r, sl.dbar, sl.dn, sl.p_nr) + 1
             rel = lambda idx: int(idx) - c0 if int(idx) >= 0 else -1
-            comp = spec.compliance
             pair_i[k] = [spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
                          int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
                          int(sl.sigma >= 0), int(sl.p_r >= 0),
