@@ -143,6 +143,33 @@ def rocking_errors(order: int, h: float, duration: float = 1.0) -> tuple[float, 
             float(np.max(np.abs(er.rocking_energy(traj) - e0)) / e0))
 
 
+LAYER_K = 1e5   # [N/m]: the undamped quasi-rigid layer under the rocking ellipsoid
+
+
+def layer_rocking_error(order: int, h: float, duration: float = 1.0, k: float = LAYER_K) -> float:
+    """Largest |E(t) - E(0)| over the rocking energy of the rocking ellipsoid on an undamped
+    quasi-rigid layer of stiffness k over the ground (stepper.set_pair_compliance; E: kinetic +
+    gravity + the layer's k delta^2 / 2, which rolling without slip keeps). The ellipsoid starts
+    at its static deflection m g / k (check_penetration_at_start off), so the layer does not
+    ring at the start."""
+    from scenes import ellipsoid_rocking as er
+    world = er.build_world(h)
+    skel = world.getSkeleton("ellipsoid")
+    q = np.array(skel.getPositions())
+    q[5] -= er.MASS * G / k
+    skel.setPositions(q)
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise",
+                                        options=ic.StepperOptions(order=order, check_penetration_at_start=False))
+    stepper.set_pair_compliance(skel.getBodyNode(0), world.getSkeleton("ground").getBodyNode(0), ic.Compliance(k=k))
+    energy = []
+    for _ in range(int(round(duration / h))):
+        stepper.step()
+        q, v = skel.getPositions(), skel.getVelocities()
+        energy.append(0.5 * v @ skel.getMassMatrix() @ v + er.MASS * G * (q[5] - er.SEMI_AXES[2]) + stepper.spring_energy())
+    energy = np.array(energy)
+    return float(np.max(np.abs(energy - energy[0])) / er.exact_energy())
+
+
 def _ball_body(skel, mu: float):
     """The root of skel: a FreeJoint body, a 1 kg solid ball of radius BALL_R (DART SphereShape
     with collision, friction mu)."""
@@ -227,6 +254,7 @@ CASES = {
     "rocking energy": (lambda o, h: rocking_errors(o, h)[1], "relative energy error"),
     "slide": (lambda o, h: slide_error(o, h), "position error [m]"),
     "damped joint": (lambda o, h: damped_joint_error(o, h), "angle error [rad]"),
+    "layer rocking": (lambda o, h: layer_rocking_error(o, h), "relative energy error"),
     "example 2": (lambda o, h: example2_event_error(o, h), "event time error [s]"),
 }
 
