@@ -90,8 +90,11 @@ replaced by the damper's impulse at the end velocity,
 (stage 1's half, c (delta+ - delta) / 2 = h/2 c (the compression rate at u), is backward Euler
 already): a factor 1 / (1 + a)^2 on the layer's velocity, L-stable, first order in the layer,
 and a body at rest on it keeps v+ = 0. Across the layer the frame is split like a rigid
-pair's (R1, R5). A compliant face on a face stays one point in stage 2 (no patch vertices: its
-load is the layer's, known, not a velocity-level unknown to be spread).
+pair's (R1, R5). A compliant face on a face spreads the layer's load over its patch's vertices
+in stage 2 where the face does not turn into the layer (rows/velocity.py: its point's unknown is
+the loaded vertices' common normal velocity): with the load at stage 1's point, which sits
+wherever it cancels the last step's spin, a box at rest on a layer rocked at +-0.0075 rad/s
+from step to step, its positions still.
 
 The start frame of a pair (n0, t0, o0 and the levers r_b0 = a_b - p_b at l) comes from the last
 step's solution when the pair persists (its closest points at l+1 are the points at l now), else
@@ -182,6 +185,12 @@ class ClosedPair:
     #                        s_p; its P_n unknown is then the core's, P_n = S + P_c (R12)
     core_open: bool = False  # a quasi-rigid pair whose core is open at q+: P_c = 0 (R12)
     damp: float = 0.0      # a stiff layer's damper at v+: P_n -= damp n . v_rel(v+) (R14; s_p s/m)
+    layered: bool = False  # a quasi-rigid pair (load, core_open, damp apply)
+
+    @property
+    def layered_patch(self) -> bool:
+        """A quasi-rigid face on a face's friction point: its vertices share the layer's load."""
+        return self.vertices > 0 and self.layered
 
     @property
     def friction(self) -> bool:
@@ -203,7 +212,9 @@ class Stage2:
     normal load can move within the patch (a single point cannot resist tipping at the velocity
     level) while friction sees the patch's whole load; its stage-1 impulse R1 is a known pair
     (known=True) whose W^T R1 moves into the right-hand side. A quasi-rigid pair's unknown P_n is
-    its core's impulse, its layer's (ClosedPair.load) added in the rows (R12, R13)."""
+    its core's impulse, its layer's (ClosedPair.load) added in the rows (R12, R13); a quasi-rigid
+    face on a face has its vertices share the layer's load where the face does not turn into the
+    layer, its point's unknown their common normal velocity (rows/velocity.py)."""
 
     def __init__(self, skeletons, bodies, pairs, joints=()):
         """joints: per joint row (g over all of x's velocity columns (nv,), unit, lower, upper,
@@ -247,13 +258,19 @@ class Stage2:
         self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
         lo, hi = [[-np.inf] * at], [[np.inf] * at]
+        parent, left = -1, 0
         for k, cp in enumerate(self.pairs):
             nt = (cp.dim - 1) if cp.friction else 0
             nr = 1 if (cp.friction and cp.dim == 3 and cp.e_r > 0.0) else 0
             ns = 1 if cp.friction else 0
-            self.pi[k] = (at, nt, nr, ns, cp.vertices, int(cp.core_open))
+            self.pi[k] = (at, nt, nr, ns, cp.vertices, int(cp.core_open), int(cp.layered_patch),
+                          parent if left > 0 else -1)
             self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1, cp.load, cp.damp)
-            lo.append([-np.inf if (cp.vertices or cp.core_open) else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
+            left -= 1
+            if cp.vertices:            # (a layered patch's vertices refer to its point's column)
+                parent, left = (at if cp.layered_patch else -1), cp.vertices
+            free = cp.core_open or (cp.vertices and not cp.layered_patch)
+            lo.append([-np.inf if free else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
             hi.append([np.inf] * (1 + nt + nr + ns))
             at += 1 + nt + nr + ns
         nj = len(joints)
@@ -284,7 +301,7 @@ class Stage2:
         x = np.zeros(self.n)
         for c, k in self._blocks:      # M is block diagonal over the skeletons
             x[c:c + k] = self.u[c:c + k] + np.linalg.solve(self.M[c:c + k, c:c + k], self.hf[c:c + k])
-        for cp, (c, nt, nr, ns, _, _) in zip(self.pairs, self.pi):
+        for cp, (c, nt, nr, ns, *_) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + 1 + nt] = 2.0 * cp.R1[:1 + nt]
             if nr:
@@ -300,7 +317,7 @@ class Stage2:
     def cold_start(self) -> np.ndarray:
         """start() with zero impulses (sigma kept)."""
         x = self.start()
-        for cp, (c, nt, nr, ns, _, _) in zip(self.pairs, self.pi):
+        for cp, (c, nt, nr, ns, *_) in zip(self.pairs, self.pi):
             x[c:c + 1 + nt + nr] = 0.0
         x[self.jcol] = 0.0
         return x
@@ -353,11 +370,14 @@ class Stage2:
 
     def impulses(self, x):
         """Per closed pair its total (P_n, P_t, P_o, P~_r) in units of s_p (a quasi-rigid pair's
-        P_n: its layer's and its core's)."""
+        P_n: its layer's and its core's; a patch's point: its vertices')."""
         out = []
-        for k, (cp, (c, nt, nr, ns, _, _)) in enumerate(zip(self.pairs, self.pi)):
+        for k, (cp, (c, nt, nr, ns, *_)) in enumerate(zip(self.pairs, self.pi)):
             P = np.zeros(4)
-            P[0] = x[c] + cp.load - cp.damp * float(self.G[k, 0] @ x[:self.nv])
+            if cp.vertices:
+                P[0] = sum(float(x[self.pi[i, 0]]) for i in range(k + 1, k + 1 + cp.vertices))
+            else:
+                P[0] = x[c] + cp.load - cp.damp * float(self.G[k, 0] @ x[:self.nv])
             P[1:1 + nt] = x[c + 1:c + 1 + nt]
             if nr:
                 P[3] = x[c + 1 + nt]
@@ -368,7 +388,9 @@ class Stage2:
     def core_impulses(self, x):
         """Per closed pair the normal impulse of its rigid core (R12; a rigid pair's P_n), in
         units of s_p."""
-        return [float(x[c]) for c in self.pi[:, 0]]
+        P = self.impulses(x)
+        return [P[k][0] - (cp.load - cp.damp * float(x[self.pi[k, 0]])) if cp.layered_patch else float(x[self.pi[k, 0]])
+                for k, cp in enumerate(self.pairs)]
 
 
 def _charged(budget, options, solve):

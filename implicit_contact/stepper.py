@@ -917,31 +917,32 @@ class ImplicitContactStepper:
             sigma = float(z[sl.sigma]) if sl.sigma >= 0 else 0.0
             stage1 = rattle.ClosedPair(tuple(ends), (rep[k, rc.R_A1:rc.R_A1 + 3].copy(), rep[k, rc.R_A2:rc.R_A2 + 3].copy()),
                                        n, t, o, spec.dim, mu, fr.e_t, fr.e_o, e_r, spec.impulse_scale, R1, sigma)
+            layer = {}
             if spec.compliance is not None:
                 # the layer's impulse over the step, twice stage 1's half, and its core (R11, R12);
                 # a damper stiff for the step acts at v+ in stage 2 (R14)
                 p_nr = float(z[sl.p_nr]) if sl.p_nr >= 0 else 0.0
                 comp, dn = spec.compliance, float(z[sl.dn])
-                core_open = not (p_nr > 0.0 or comp.delta_max - dn <= tol)
-                load, damp = 2.0 * (p_n - p_nr), 0.0
+                layer = dict(layered=True, load=2.0 * (p_n - p_nr),
+                             core_open=not (p_nr > 0.0 or comp.delta_max - dn <= tol))
                 if rattle.stiff_layer(comp, problem.h, self._reduced_mass(spec)):
                     dprev = float(problem.tables.pair_f[k, rc.Q_DPREV])    # (the repeat path's too)
-                    load -= 0.5 * comp.c_n * (dn - dprev) / spec.impulse_scale
-                    damp = 0.5 * problem.h * comp.c_n / spec.impulse_scale
-                cps.append(replace(stage1, load=load, damp=damp, core_open=core_open,
-                                   start_n=0.0 if core_open else 2.0 * p_nr))
-                closed.append((k, 1))
-                continue
+                    layer["load"] -= 0.5 * comp.c_n * (dn - dprev) / spec.impulse_scale
+                    layer["damp"] = 0.5 * problem.h * comp.c_n / spec.impulse_scale
             X = self._patch_vertices(spec, n) if landing.faceted_pair(spec) else None
             if X is None:
+                if layer:
+                    stage1 = replace(stage1, start_n=0.0 if layer["core_open"] else 2.0 * p_nr, **layer)
                 cps.append(stage1)
                 closed.append((k, 1))
                 continue
-            # a face on a face: its friction point and its patch's vertices at q+ (rattle.Stage2)
+            # a face on a face: its friction point and its patch's vertices at q+ (rattle.Stage2);
+            # a layered one's vertices share the layer's load (its point: their normal velocity)
             cps.append(replace(stage1, known=True, R1=np.r_[R1[0], 0.0, 0.0, 0.0]))   # its normal part
-            cps.append(replace(stage1, vertices=len(X), R1=np.r_[0.0, R1[1:]]))          # and its friction
+            cps.append(replace(stage1, vertices=len(X), R1=np.r_[0.0, R1[1:]], **layer))  # and its friction
+            share = (layer["load"] if layer else 2.0 * p_n) / len(X)
             for x in X:
-                cps.append(replace(stage1, a=(x, x), mu=0.0, e_r=0.0, R1=np.zeros(4), start_n=2.0 * p_n / len(X)))
+                cps.append(replace(stage1, a=(x, x), mu=0.0, e_r=0.0, R1=np.zeros(4), start_n=max(share, 0.0)))
             closed.append((k, 1 + len(X)))
         skeletons, jrows, jdata = [], [], []
         for i, s in enumerate(att.involved):

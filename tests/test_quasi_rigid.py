@@ -134,7 +134,7 @@ def _box_on_layer(order, tilt, v0):
     return world, box, ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
 
 
-@pytest.mark.parametrize("order", [1])
+@pytest.mark.parametrize("order", [1, 2])
 @pytest.mark.parametrize("tilt, v0", [(0.0, 0.0), (0.3, 0.5)])
 def test_box_lands_on_a_layer_and_rests_on_its_face(order, tilt, v0):
     """A box landing flat, or on an edge while sliding, on a damped layer comes to rest on its

@@ -307,10 +307,10 @@ def test_order_2_example_2_events_agree_with_order_1():
 
 
 def _random_stage2(rng):
-    """Two free bodies (DART's world Jacobian I6) and a fixed one; five closed pairs: free/free
-    with torsion, free/fixed with friction, free/fixed frictionless, and two quasi-rigid pairs
-    with friction (a layer's known load and a damper at v+, R12-R14), one with its core closed,
-    one open."""
+    """Two free bodies (DART's world Jacobian I6) and a fixed one; closed pairs: free/free with
+    torsion, free/fixed with friction, free/fixed frictionless, two quasi-rigid pairs with
+    friction (a layer's known load and a damper at v+, R12-R14), one with its core closed, one
+    open, and a layered patch (its friction point and two vertices)."""
     from implicit_contact import rattle
 
     def frame():
@@ -333,7 +333,17 @@ def _random_stage2(rng):
         n, t, o = frame()
         R1 = np.r_[abs(rng.normal()) + 0.2, 0.1 * rng.normal(size=2), 0.1 * rng.normal() if e_r else 0.0]
         pairs.append(rattle.ClosedPair(ends, (rng.normal(size=3), rng.normal(size=3)), n, t, o, 3, mu, 1.0, 0.8,
-                                       e_r, 0.05, R1, 0.3, load=load, core_open=core_open, damp=damp))
+                                       e_r, 0.05, R1, 0.3, load=load, core_open=core_open, damp=damp,
+                                       layered=bool(load)))
+    # a layered patch (a quasi-rigid face on a face): its friction point and two vertices
+    n, t, o = frame()
+    a = rng.normal(size=3)
+    pairs.append(rattle.ClosedPair((1, -1), (a, a), n, t, o, 3, 0.5, 1.0, 1.0, 0.0, 0.05,
+                                   np.r_[0.0, 0.1 * rng.normal(size=2), 0.0], 0.3, vertices=2, layered=True,
+                                   load=0.9, damp=0.4))
+    for _ in range(2):
+        x = a + 0.1 * np.cross(n, rng.normal(size=3))
+        pairs.append(rattle.ClosedPair((1, -1), (x, x), n, t, o, 3, 0.0, 1.0, 1.0, 0.0, 0.05, np.zeros(4), 0.0))
     return rattle.Stage2(skeletons, bodies, pairs), bodies, pairs
 
 
@@ -359,11 +369,19 @@ def test_stage_2_rows_are_point_velocities_and_their_jacobian_matches_central_di
     assert P[3][0] == pytest.approx(x[stage.pi[3][0]] + 1.3 - 0.8 * stage.G[3, 0] @ x[:stage.nv], abs=1e-14)
     force = stage.M @ (x[:stage.nv] - stage.u) - stage.hf
     for cp, G, Pc in zip(pairs, stage.G, P):
-        dP = (Pc - cp.R1) * (1.0, cp.friction, cp.friction, cp.friction)   # (a frictionless pair: P_n alone)
+        dP = (Pc - cp.R1) * (cp.vertices == 0, cp.friction, cp.friction, cp.friction)   # (a frictionless
+        #                                       pair: P_n alone; a patch's point: its vertices carry P_n)
         force -= cp.s_p * (G[:3].T @ dP[:3] + cp.e_r * G[3] * dP[3])
     F = stage.fun(x)
     np.testing.assert_allclose(F[:stage.nv], stage.scale * force, rtol=0, atol=1e-12)
     assert F[stage.pi[4][0]] == x[stage.pi[4][0]]          # an open core: no core impulse
+    # the layered patch: its vertices' sum less the layer's L - beta w (w: its point's unknown),
+    # and each vertex's normal velocity above w
+    w, (c1, c2) = x[stage.pi[5][0]], (stage.pi[6][0], stage.pi[7][0])
+    assert P[5][0] == pytest.approx(x[c1] + x[c2], abs=1e-14)
+    assert F[stage.pi[5][0]] == pytest.approx(x[c1] + x[c2] - (0.9 - 0.4 * w), abs=1e-14)
+    for k, c in ((6, c1), (7, c2)):
+        assert F[c] == pytest.approx(stage.G[k, 0] @ x[:stage.nv] - w, abs=1e-14)
     J = stage.jac(x)
     J_fd = np.column_stack([(stage.fun(x + EPS_FD * e) - stage.fun(x - EPS_FD * e)) / (2 * EPS_FD)
                             for e in np.eye(stage.n)])

@@ -9,7 +9,8 @@ J_b = [A_w; A_v] (angular rows first), lever r_b = a_b - p_b and s_1 = -1, s_2 =
     G_c[3] += s_b n^T A_w
 
 Unknowns x = [v+; per pair P_n, (P_t, P_o), (P~_r), (sigma)] (impulses in units of s_p); pair
-table pi = (first column, tangent unknowns, torsion unknown, sigma, patch vertices, core open),
+table pi = (first column, tangent unknowns, torsion unknown, sigma, patch vertices, core open,
+layered patch, parent column),
 pf = (mu, e_t, e_o, e_r, s_p, R1_n, R1_t, R1_o, R1~_r, L, beta). Rows:
 
     M (v+ - u) - h/2 f - sum_c s_p W_c^T (P_c - R1_c)                   (R5), scaled by 1/diag(M)
@@ -37,14 +38,19 @@ A patch (a face on a face; pi's V_NVERT = m > 0) is its friction point c followe
 vertices, frictionless pairs whose normal impulses carry the patch's normal load (so that the
 load can move within the patch). The point's P_n is then their sum, the row P_n - sum_i P_n,i = 0
 in place of (R6), and its own normal column is not applied; its friction rows see that P_n.
+A layered patch (a quasi-rigid face on a face, V_LAYER = 1) has a known total: its point's
+unknown x[c] is then the common normal velocity w of its loaded vertices, each vertex's row
+n . v_rel,i - w complementary to P_n,i >= 0 (V_PARENT: the point's column), and the point's row
+sum_i P_n,i - (L - beta w) (the core's impulse) complementary to w >= 0 when its core is closed,
+= 0 (w free) when open. The load then sits where the face does not turn into the layer.
 """
 from __future__ import annotations
 
 from .._jit import kernel
 
 # pair_i columns
-V_COL, V_NT, V_NR, V_NS, V_NVERT, V_OPEN = 0, 1, 2, 3, 4, 5
-NVI = 6
+V_COL, V_NT, V_NR, V_NS, V_NVERT, V_OPEN, V_LAYER, V_PARENT = 0, 1, 2, 3, 4, 5, 6, 7
+NVI = 8
 # pair_f columns
 V_MU, V_ET, V_EO, V_ER, V_SP, V_R1, V_LOAD, V_DAMP = 0, 1, 2, 3, 4, 5, 9, 10
 NVF = 11
@@ -100,15 +106,22 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
     for cp in range(pi.shape[0]):
         c, nt, nr, ns = pi[cp, V_COL], pi[cp, V_NT], pi[cp, V_NR], pi[cp, V_NS]
         nvert = pi[cp, V_NVERT]
+        layered_patch = nvert > 0 and pi[cp, V_LAYER] > 0
         m = 1 + nt + nr
         s_p, e_r = pf[cp, V_SP], pf[cp, V_ER]
-        # the pair's normal impulse x[c] + L - beta n . v_rel (a quasi-rigid pair; else x[c])
-        beta = pf[cp, V_DAMP]
+        # the pair's normal impulse p_n: x[c] + L - beta n . v_rel (a pair; L = beta = 0 if
+        # rigid), x[c] (a rigid patch's point), or its vertices' sum (a layered patch's point)
+        beta = pf[cp, V_DAMP] if nvert == 0 else 0.0
         wn = 0.0
         if beta != 0.0:
             for i in range(nv):
                 wn += G[cp, 0, i] * x[i]
         load = pf[cp, V_LOAD] - beta * wn
+        p_n = x[c] + load
+        if layered_patch:
+            p_n = 0.0
+            for k in range(cp + 1, cp + 1 + nvert):
+                p_n += x[pi[k, V_COL]]
         # (R5): the impulse columns n, t, (o), (torsion), and their rows of G (a patch's point:
         # no normal column, its vertices carry the load)
         for q in range(1 if nvert > 0 else 0, m):
@@ -126,7 +139,19 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
                     if q == 0 and beta != 0.0:
                         for j in range(nv):
                             J[i, j] += g * beta * G[cp, 0, j]
-        if nvert > 0:
+        if layered_patch:
+            # a layered patch's point: x[c] is the common normal velocity w of its loaded
+            # vertices; the vertices' sum less the layer's L - beta w is the core's impulse
+            b = pf[cp, V_DAMP]
+            acc = b * x[c] - pf[cp, V_LOAD]
+            if need_jac:
+                J[c, c] = b
+            for k in range(cp + 1, cp + 1 + nvert):
+                acc += x[pi[k, V_COL]]
+                if need_jac:
+                    J[c, pi[k, V_COL]] = 1.0
+            F[c] = acc
+        elif nvert > 0:
             # a patch's point: P_n = the sum of its vertices' normal impulses
             acc = x[c]
             if need_jac:
@@ -142,18 +167,22 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             if need_jac:
                 J[c, c] = 1.0
         else:
-            # (R6)
+            # (R6); a layered patch's vertex: its normal velocity above the patch's w
             acc = 0.0
             for i in range(nv):
                 acc += G[cp, 0, i] * x[i]
                 if need_jac:
                     J[c, i] = G[cp, 0, i]
+            parent = pi[cp, V_PARENT]
+            if parent >= 0:
+                acc -= x[parent]
+                if need_jac:
+                    J[c, parent] = -1.0
             F[c] = acc
         if ns == 0:
             continue
         # (R7), [GI] (21)-(22)
         mu = pf[cp, V_MU]
-        p_n = x[c] + load
         sigma = x[c + m]
         cone = (mu * p_n) ** 2
         for q in range(1, m):
@@ -172,13 +201,21 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             if need_jac:
                 for i in range(nv):
                     J[r, i] = wgt * mu * (p_n * G[cp, grow, i] - beta * slip * G[cp, 0, i])
-                J[r, c] = wgt * mu * slip
+                if layered_patch:
+                    for k in range(cp + 1, cp + 1 + nvert):
+                        J[r, pi[k, V_COL]] = wgt * mu * slip
+                else:
+                    J[r, c] = wgt * mu * slip
                 J[r, r] = sigma
                 J[r, c + m] = x[r]
                 J[c + m, r] = -2.0 * x[r] / e2
         F[c + m] = cone
         if need_jac:
-            J[c + m, c] = 2.0 * mu * mu * p_n
+            if layered_patch:
+                for k in range(cp + 1, cp + 1 + nvert):
+                    J[c + m, pi[k, V_COL]] = 2.0 * mu * mu * p_n
+            else:
+                J[c + m, c] = 2.0 * mu * mu * p_n
             for i in range(nv):
                 J[c + m, i] = -2.0 * mu * mu * p_n * beta * G[cp, 0, i]
     for r in range(jg.shape[0]):
