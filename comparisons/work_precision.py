@@ -40,7 +40,7 @@ Scenes, references and errors (SCENES; each error is a pure function of a run an
                  Errors: tilt = max_t |theta - theta_exact| [rad]; energy = |E(T) - E0| / E0 of
                  the rocking energy (kinetic + m g (z - c)).
   quasi_rigid_drop  [GI] Example 3 (scenes.disc_on_quasi_rigid_plane, delta_max = 1 m: no core hit)
-                 over 0.45 s, implicit only (DART has no quasi-rigid contact). Error: max |delta -
+                 over 0.45 s, implicit only, orders 1 and 2 (DART has no quasi-rigid contact). Error: max |delta -
                  delta_exact| [m] of the layer's deflection during the first contact (the scene's
                  analytic_deflection). A hook: skipped with a printed note while the scene module
                  (or its simulate / analytic_deflection / analytic_events) is missing.
@@ -243,7 +243,7 @@ class RunConfig:
 
 DISC_SHAPES = ("ngon100", "ngon1000", "cylinder", "sphere")
 TOLERANCE_SCENES = ("disc_rolling", "slide_to_roll", "ellipsoid_rocking")
-ORDER2_SCENES = ("disc_rolling", "slide_to_roll", "sphere_on_two_spheres", "ellipsoid_rocking")   # (no quasi-rigid layers yet)
+ORDER2_SCENES = ("disc_rolling", "slide_to_roll", "sphere_on_two_spheres", "ellipsoid_rocking", "quasi_rigid_drop")
 
 
 @dataclass(frozen=True, eq=False)
@@ -373,7 +373,7 @@ def _run_ellipsoid(config: RunConfig) -> RunRecord:
 
 def _run_quasi_rigid(config: RunConfig) -> RunRecord:
     scene = importlib.import_module(SCENES["quasi_rigid_drop"].module)
-    record = scene.simulate(QUASI_DELTA_MAX, config.duration, config.h)
+    record = scene.simulate(QUASI_DELTA_MAX, config.duration, config.h, order=config.order)
     return RunRecord(config, np.asarray(record.t), {"deflection": np.asarray(record.deflection)},
                      float(np.sum(record.traj.step_seconds)))
 
@@ -513,7 +513,7 @@ DEFAULT_PLANS = (
     ScenePlan("slide_to_roll", 1.0, _IMPLICIT_H, (DEFAULT_TOL, 1e-6), _DART_H, DISC_SHAPES, orders=(1, 2)),
     ScenePlan("sphere_on_two_spheres", 4.0, _IMPLICIT_H[:4], dart_steps=_DART_H, reference_h=REFERENCE_H, orders=(1, 2)),
     ScenePlan("ellipsoid_rocking", 3.0, _IMPLICIT_H[:-1], dart_steps=_DART_H, orders=(1, 2)),
-    ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4, 2e-4, 1e-4)),
+    ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4, 2e-4, 1e-4), orders=(1, 2)),
 )
 QUICK_PLANS = (
     ScenePlan("disc_rolling", 5.0, (0.02, 0.01), dart_steps=(0.01, 0.001), dart_shapes=("ngon1000", "cylinder", "sphere"),
@@ -522,7 +522,7 @@ QUICK_PLANS = (
               detectors=("fcl",)),
     ScenePlan("sphere_on_two_spheres", 4.0, (0.02, 0.01), dart_steps=(0.01, 0.001), detectors=("fcl",), reference_h=2e-3),
     ScenePlan("ellipsoid_rocking", 3.0, (0.02, 0.01), dart_steps=(0.01, 0.001), detectors=("fcl",), orders=(1, 2)),
-    ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4)),
+    ScenePlan("quasi_rigid_drop", 0.45, (1e-3, 5e-4), orders=(1, 2)),
 )
 
 
