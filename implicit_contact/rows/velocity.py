@@ -200,7 +200,9 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
             cone -= x[r] * x[r] / e2
             if need_jac:
                 for i in range(nv):
-                    J[r, i] = wgt * mu * (p_n * G[cp, grow, i] - beta * slip * G[cp, 0, i])
+                    J[r, i] = wgt * mu * p_n * G[cp, grow, i]
+                    if beta != 0.0:
+                        J[r, i] -= wgt * mu * beta * slip * G[cp, 0, i]
                 if layered_patch:
                     for k in range(cp + 1, cp + 1 + nvert):
                         J[r, pi[k, V_COL]] = wgt * mu * slip
@@ -216,8 +218,9 @@ def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac)
                     J[c + m, pi[k, V_COL]] = 2.0 * mu * mu * p_n
             else:
                 J[c + m, c] = 2.0 * mu * mu * p_n
-            for i in range(nv):
-                J[c + m, i] = -2.0 * mu * mu * p_n * beta * G[cp, 0, i]
+            if beta != 0.0:
+                for i in range(nv):
+                    J[c + m, i] = -2.0 * mu * mu * p_n * beta * G[cp, 0, i]
     for r in range(jg.shape[0]):
         c = jcol[r]
         acc = 0.0
