@@ -26,6 +26,9 @@ SCENES = {
     "parallel-jaw gripper": ("gripper_squeeze", "()", 40, "scene.control(built[1], world.getTime())"),
     # order 2 (rattle.py): its second stage's rows (rows/velocity.py) on a rocking ellipsoid
     "rocking ellipsoid, order 2": ("ellipsoid_rocking", "(2e-3)", 20, "pass", "ic.StepperOptions(order=2)"),
+    # order 2 on a quasi-rigid layer (rattle.py, R11-R12): the disc lands at 0.32 s and hits the core
+    "quasi-rigid disc landing, order 2": ("disc_on_quasi_rigid_plane", "(0.05, 0.012)", 32, "pass",
+                                          "ic.StepperOptions(order=2)"),
 }
 
 PROGRAM = """
