@@ -21,7 +21,7 @@ the skeleton with contact shapes is a body of the step with the skeleton's veloc
 DART's world Jacobian at l; pairs within one skeleton are skipped (no self-collision); the write-
 back is DART's setVelocities + integratePositions for every mobile skeleton, as for free bodies.
 Joint springs and dampers are implicit as in DART (dart_adapter.read_dynamics); under order 2 they
-take the implicit midpoint rule (rattle.py, R9-R10).
+take the implicit midpoint rule (rattle.py, R9-R10), and so do quasi-rigid layers (R11-R14).
 
 Friction rows of a pair are built when the pair can be in contact in this step (it was in contact
 at the last step, or its bodies are within the motion margin). A pair whose gap is open at the
