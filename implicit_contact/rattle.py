@@ -389,7 +389,8 @@ class Stage2:
         """Per closed pair the normal impulse of its rigid core (R12; a rigid pair's P_n), in
         units of s_p."""
         P = self.impulses(x)
-        return [P[k][0] - (cp.load - cp.damp * float(x[self.pi[k, 0]])) if cp.layered_patch else float(x[self.pi[k, 0]])
+        return [0.0 if cp.core_open else
+                P[k][0] - (cp.load - cp.damp * float(x[self.pi[k, 0]])) if cp.layered_patch else float(x[self.pi[k, 0]])
                 for k, cp in enumerate(self.pairs)]
 
 

@@ -108,16 +108,16 @@ LAYER_K = 1e5                                     # N/m; critically damped for t
 REST_ATOL = 1e-9                                  # m, m/s, rad/s: at rest on the static deflection
 
 
-def _box_on_layer(order, tilt, v0):
+def _box_on_layer(order, tilt, v0, k=LAYER_K, vz=0.0):
     """A DART box (2 kg, 0.2 x 0.2 x 0.1 m, mu = 0.5) dropped from 1 cm (its lowest point) with
-    a tilt about x and a sideways speed onto a welded half-space with a critically damped layer
-    (k = 1e5 N/m, delta_max = 1 cm); (world, box skeleton, stepper)."""
+    a tilt about x, a sideways speed v0 and a vertical one vz onto a welded half-space with a
+    critically damped layer (k, delta_max = 1 cm); (world, box skeleton, stepper)."""
     from implicit_contact.testing import dart_world
     world = dart_world(1e-3)
     ground = dart.dynamics.Skeleton("ground")
     _, body = ground.createWeldJointAndBodyNodePair()
     ic.attach(body, ic.shapes.HalfSpace([0, 0, 1], 0.0), friction=ic.Friction(0.5),
-              compliance=ic.Compliance(k=LAYER_K, c=2.0 * math.sqrt(LAYER_K * BOX_MASS), delta_max=0.01))
+              compliance=ic.Compliance(k=k, c=2.0 * math.sqrt(k * BOX_MASS), delta_max=0.01))
     world.addSkeleton(ground)
     box = dart.dynamics.Skeleton("box")
     _, b = box.createFreeJointAndBodyNodePair()
@@ -130,7 +130,7 @@ def _box_on_layer(order, tilt, v0):
     world.addSkeleton(box)
     low = 0.5 * (y * math.sin(tilt) + z * math.cos(tilt))
     box.setPositions([tilt, 0.0, 0.0, 0.0, 0.0, low + 0.01])
-    box.setVelocities([0.0, 0.0, 0.0, v0, 0.0, 0.0])
+    box.setVelocities([0.0, 0.0, 0.0, v0, 0.0, vz])
     return world, box, ic.ImplicitContactStepper(world, on_failure="raise", options=ic.StepperOptions(order=order))
 
 
@@ -147,3 +147,22 @@ def test_box_lands_on_a_layer_and_rests_on_its_face(order, tilt, v0):
     assert q[5] == pytest.approx(BOX_SIZE[2] / 2 - BOX_MASS * 9.81 / LAYER_K, abs=REST_ATOL)
     assert np.max(np.abs(v)) <= REST_ATOL
     assert np.max(np.abs(q[:2])) <= 1e-6                       # on its face: no tilt left
+
+
+@pytest.mark.parametrize("order", [1, 2])
+@pytest.mark.parametrize("tilt, v0", [(0.0, 0.0), (0.3, 0.5)])
+def test_box_hits_the_core_of_a_soft_layer_and_rests_on_it(order, tilt, v0):
+    """The same box thrown down at 3 m/s onto a softer layer (k = 1e4 N/m): its deflection
+    reaches delta_max = 1 cm, the core stops it in a few steps (a plastic hit), and it rests at
+    m g / k = 2 mm with the core unloaded (p_core = 0 at rest)."""
+    k = 1e4
+    _, box, stepper = _box_on_layer(order, tilt, v0, k=k, vz=-3.0)
+    core_steps = 0
+    for _ in range(2000):
+        report = stepper.step()
+        core_steps += any(c.p_core > 0.0 for c in report.contacts)
+    assert 1 <= core_steps <= 10
+    assert all(c.p_core == 0.0 for c in report.contacts)
+    q, v = np.array(box.getPositions()), np.array(box.getVelocities())
+    assert q[5] == pytest.approx(BOX_SIZE[2] / 2 - BOX_MASS * 9.81 / k, abs=REST_ATOL)
+    assert np.max(np.abs(v)) <= REST_ATOL
