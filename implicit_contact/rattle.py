@@ -385,13 +385,22 @@ class Stage2:
         return out
 
 
-    def core_impulses(self, x):
-        """Per closed pair the normal impulse of its rigid core (R12; a rigid pair's P_n), in
-        units of s_p."""
-        P = self.impulses(x)
-        return [0.0 if cp.core_open else
-                P[k][0] - (cp.load - cp.damp * float(x[self.pi[k, 0]])) if cp.layered_patch else float(x[self.pi[k, 0]])
-                for k, cp in enumerate(self.pairs)]
+    def core_impulses(self, x, totals):
+        """Per closed pair the normal impulse of its rigid core (R12), in units of s_p, from x and
+        the pairs' total impulses (impulses(x)): all of a rigid pair's P_n; none with the core open;
+        a layered patch's vertices' sum less the layer's L - beta w (w: its point's unknown); else
+        the pair's normal unknown."""
+        cores = []
+        for cp, (c, *_), P in zip(self.pairs, self.pi, totals):
+            if not cp.layered:
+                cores.append(P[0])
+            elif cp.core_open:
+                cores.append(0.0)
+            elif cp.layered_patch:
+                cores.append(P[0] - (cp.load - cp.damp * float(x[c])))
+            else:
+                cores.append(float(x[c]))
+        return cores
 
 
 def _charged(budget, options, solve):

@@ -979,7 +979,8 @@ class ImplicitContactStepper:
         """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2);
         lazily made (_LazyContacts) if stage 1's are."""
         v = x[:stage2.nv]
-        P_all, cores = stage2.impulses(x), stage2.core_impulses(x)
+        P_all = stage2.impulses(x)
+        cores = stage2.core_impulses(x, P_all)
         updates, at = {}, 0
         for k, count in closed:
             # the pair, or a patch's friction point (its P_n is its vertices' sum) followed by them
