@@ -195,6 +195,12 @@ def impulse_weights(problem: StepProblem, weight: float | None = None) -> np.nda
     return w
 
 
+# The endgame (ncp.newton_min_map) after a solve that failed within ENDGAME_RESIDUAL of a
+# solution, on problems of up to ENDGAME_MAX_UNKNOWNS unknowns (its steps are dense SVDs).
+ENDGAME_RESIDUAL = 1e-4
+ENDGAME_MAX_UNKNOWNS = 600
+
+
 def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = True,
           proximal: bool = False) -> ncp.McpResult:
     """The step's MCP from z0, polished (see the module docstring). sync: copy the pairs' k1 and
@@ -206,6 +212,12 @@ def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = Tru
                                     impulse_weights(problem), options)
     else:
         result = _solve_once(problem, z0, options, sync)
+    if not result.success and result.residual <= ENDGAME_RESIDUAL and problem.layout.n <= ENDGAME_MAX_UNKNOWNS:
+        end = ncp.newton_min_map(problem.fun, problem.jac, result.x, problem.lower, problem.upper, options.tol)
+        if end.success:
+            result = replace(end, iterations=result.iterations + end.iterations,
+                             steps=result.steps + end.steps, nfev=result.nfev + end.nfev, njev=result.njev + end.njev,
+                             merit_history=result.merit_history)
     if result.success and result.residual > 1e-3 * options.tol:
         polish = _solve_once(problem, result.x, _polishing(problem, options), False)
         if polish.residual < result.residual:

@@ -12,7 +12,7 @@ import pytest
 import scipy.sparse as sp
 
 from comparisons.mcp_problems import lemke, standard_problems
-from implicit_contact.ncp import McpResult, SolverOptions, Status, solve_mcp, solve_proximal
+from implicit_contact.ncp import McpResult, SolverOptions, Status, newton_min_map, solve_mcp, solve_proximal
 
 MIN_SOLVED_FRACTION = 0.95   # of all (problem, start) pairs, the brief's robustness target
 RTOL_FD = 1e-6               # central differences, step 1e-6, relative to max |J| of O(1..1e3)
@@ -511,3 +511,78 @@ def test_proximal_malformed_input_raises_value_error(weight, max_outer, match):
     fun, jac = _lcp([[1.0]], [-1.0])
     with pytest.raises(ValueError, match=match):
         solve_proximal(fun, jac, [0.0], 0.0, np.inf, weight, PROXIMAL_OPTIONS, max_outer=max_outer)
+
+
+# -- the endgame: Newton on the min-map with least-norm steps (newton_min_map) ----------------------
+ENDGAME_TOL = 1e-12
+QUADRATIC_RESIDUAL_FACTOR = 10.0   # r_{k+1} <= K r_k^2 for O(1) data (Gauss-Newton on a circle: ~1)
+
+
+def test_min_map_newton_keeps_the_starts_share_of_a_non_unique_impulse():
+    """On the four-legged table (impulses unique only up to the warp mode n, J singular) the
+    active piece is linear and consistent: one least-norm step solves it, and a least-norm step
+    has no component along J's null vector, so the answer keeps the start's warp share c."""
+    for c in (0.0, 0.01, -0.02):
+        fun, jac, z0, lo, p_rest, warp = _table(c)
+        r = newton_min_map(fun, jac, z0, lo, np.inf, ENDGAME_TOL)
+        assert r.success and r.steps == "N" and r.iterations == 1
+        np.testing.assert_allclose(r.x[:3], 0.0, atol=ENDGAME_TOL)
+        np.testing.assert_allclose(r.x[3:], p_rest + c * warp, atol=ENDGAME_TOL)
+        assert r.residual == pytest.approx(_natural_residual(r.x, fun(r.x), lo, np.inf), rel=RTOL_RECOMPUTE)
+
+
+def test_min_map_newton_converges_quadratically_onto_a_curve_of_solutions():
+    """F = (|x|^2 - 1, 2 (|x|^2 - 1)): a rank-one Jacobian everywhere and the unit circle as
+    solution set (not isolated, so Newton's matrix is singular at every iterate). The least-norm
+    step is Gauss-Newton's on a consistent underdetermined system: quadratic, onto the circle
+    along the radius (the start's angle kept)."""
+    def fun(x):
+        e = x @ x - 1.0
+        return np.array([e, 2.0 * e])
+
+    def jac(x):
+        return np.array([2.0 * x, 4.0 * x])
+
+    x0 = np.array([1.2, 0.5])
+    r = newton_min_map(fun, jac, x0, -np.inf, np.inf, ENDGAME_TOL)
+    assert r.success and r.iterations <= 6
+    assert np.linalg.norm(r.x) == pytest.approx(1.0, abs=ENDGAME_TOL)
+    assert math.atan2(r.x[1], r.x[0]) == pytest.approx(math.atan2(0.5, 1.2), abs=1e-12)
+    errors = [e for e in r.merit_history if e > 1e-10]
+    assert len(errors) >= 3
+    for a, b in zip(errors, errors[1:]):
+        assert b <= QUADRATIC_RESIDUAL_FACTOR * a * a
+
+
+def test_min_map_newton_puts_rows_on_their_bounds():
+    """x in [0, 1]^3, F = M x + q with the solution x = (1, 0, 0.5): row 0 at its upper bound
+    (F_0 = -1.5 <= 0), row 1 at its lower bound (F_1 = 1 >= 0), row 2 free (F_2 = 0). From a
+    start near it the min-map picks that piece and lands on the solution in one step."""
+    M = np.array([[2.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 2.0]])
+    q = np.array([-4.0, 1.0, -2.0])
+    fun, jac = _lcp(M, q)
+    x_star = np.array([1.0, 0.0, 0.5])
+    F_star = fun(x_star)
+    assert F_star[0] < 0 and F_star[1] > 0 and F_star[2] == 0.0
+    r = newton_min_map(fun, jac, x_star + np.array([-1e-3, 2e-3, 1e-3]), 0.0, 1.0, ENDGAME_TOL)
+    assert r.success and r.iterations == 1
+    np.testing.assert_allclose(r.x, x_star, atol=ENDGAME_TOL)
+
+
+def test_min_map_newton_does_not_claim_a_system_without_solution():
+    """x1 + x2 = 1 and x1 + x2 = -1: the least-squares step cannot lower the residual (1 at
+    best); the endgame says so and reports the true residual, never CONVERGED."""
+    fun, jac = _lcp([[1.0, 1.0], [1.0, 1.0]], [-1.0, 1.0])
+    r = newton_min_map(fun, jac, [0.3, 0.2], -np.inf, np.inf, ENDGAME_TOL)
+    assert r.status is Status.LINE_SEARCH_FAILED and not r.success
+    assert r.residual == pytest.approx(_natural_residual(r.x, fun(r.x), -np.inf, np.inf), rel=RTOL_RECOMPUTE)
+    assert r.residual >= 1.0 - 1e-12
+
+
+def test_min_map_newton_reports_nan_as_not_finite():
+    r = newton_min_map(lambda x: np.array([np.nan]), lambda x: np.ones((1, 1)), [0.0], -np.inf, np.inf, 1e-10)
+    assert r.status is Status.NOT_FINITE and not r.success
+    def fun(x):
+        return np.array([x[0] - 1.0])
+    r = newton_min_map(fun, lambda x: np.array([[np.inf]]), [0.0], -np.inf, np.inf, 1e-10)
+    assert r.status is Status.NOT_FINITE and r.x[0] == 0.0
