@@ -12,6 +12,10 @@ more Newton step at tol / 1000. The solution becomes the next step's warm start;
 rolling contact accepted at, say, 0.5 tol would be carried at that error (a slow sink of
 ~tol h per step) instead of being exact, and one more Newton step from inside the quadratic
 basin makes it round-off exact.
+
+``solve`` also finishes stalls: a solve that fails within ENDGAME_RESIDUAL of a solution is
+handed to ncp.newton_min_map (Newton on the min-map with least-norm steps), whose answer is taken
+only if it meets the same tol (redundant contacts, an edge lying on a face: a singular Jacobian).
 """
 from __future__ import annotations
 
