@@ -719,6 +719,30 @@ def matvec(J, v, out):
 # ---------------------------------------------------------------------------------------------
 # the Python driver: F and J from callables
 # ---------------------------------------------------------------------------------------------
+@kernel
+def nonfinite(J) -> int:
+    """1 if an entry of J is NaN or inf, else 0 (ncp's I_BAD)."""
+    for i in range(J.shape[0]):
+        for j in range(J.shape[1]):
+            if not np.isfinite(J[i, j]):
+                return 1
+    return 0
+
+
+@kernel
+def dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf):
+    """mcp_iterations' linear-algebra requests (J z, the Newton and Levenberg-Marquardt
+    solves, |H g|^2) on a dense J, answered by ncp's dense kernels."""
+    if req == REQ_JZ:
+        matvec(J, zk, Jz)
+    elif req == REQ_NEWTON:
+        info[I_SINGULAR] = 0 if dense_newton(J, da, db, Phi, H, g, d) else 1
+    elif req == REQ_LM:
+        info[I_SINGULAR] = 0 if dense_lm(H, g, fbuf[F_MU], d) else 1
+    elif req == REQ_HG:
+        fbuf[F_HGSQ] = dense_hg_sq(H, g)
+
+
 class Buffers:
     """The preallocated buffers of one solve of size n (mcp_iterations' arguments)."""
 

@@ -33,30 +33,6 @@ from .rows import velocity as rv
 
 
 @kernel
-def _nonfinite(J) -> int:
-    """1 if an entry of J is NaN or inf, else 0 (ncp's I_BAD)."""
-    for i in range(J.shape[0]):
-        for j in range(J.shape[1]):
-            if not np.isfinite(J[i, j]):
-                return 1
-    return 0
-
-
-@kernel
-def _dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf):
-    """ncp.mcp_iterations' linear-algebra requests (J z, the Newton and Levenberg-Marquardt
-    solves, |H g|^2) on a dense J, answered by ncp's dense kernels."""
-    if req == ncp.REQ_JZ:
-        ncp.matvec(J, zk, Jz)
-    elif req == ncp.REQ_NEWTON:
-        info[ncp.I_SINGULAR] = 0 if ncp.dense_newton(J, da, db, Phi, H, g, d) else 1
-    elif req == ncp.REQ_LM:
-        info[ncp.I_SINGULAR] = 0 if ncp.dense_lm(H, g, fbuf[ncp.F_MU], d) else 1
-    elif req == ncp.REQ_HG:
-        fbuf[ncp.F_HGSQ] = ncp.dense_hg_sq(H, g)
-
-
-@kernel
 def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                  loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
                  history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws):
@@ -76,9 +52,9 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
                      st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, TRUE, FALSE)
-            info[ncp.I_BAD] = _nonfinite(J)
+            info[ncp.I_BAD] = ncp.nonfinite(J)
         else:
-            _dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
+            ncp.dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
     # the reports at the final iterate: the last evaluation was there unless the solve stopped
     # after a rejected trial (a failed line search)
     if np.isfinite(fbuf[ncp.F_RESIDUAL]) and info[ncp.I_STATUS] in (ncp.S_LINE_SEARCH_FAILED, ncp.S_SINGULAR):
@@ -101,9 +77,9 @@ def _solve_stage2(M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, x0, lo, hi, opt,
             rv.stage2_rows(xt, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, Ft, Jf, FALSE)
         elif req == ncp.REQ_J:
             rv.stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, Fj, J, TRUE)
-            info[ncp.I_BAD] = _nonfinite(J)
+            info[ncp.I_BAD] = ncp.nonfinite(J)
         else:
-            _dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
+            ncp.dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
 
 
 def solve_stage2(stage, x0, options: ncp.SolverOptions) -> ncp.McpResult:

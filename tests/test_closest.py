@@ -556,3 +556,51 @@ def test_timings_are_printed(capsys):
                 res = closest_points(*args)
             dt = (time.perf_counter() - t0) / n
             print(f"\n  closest_points {name}: {dt * 1e6:.0f} us, {res.iterations} Newton iterations")
+
+
+ROUND_OFF = 1e-14   # [m] the compiled and the Python rows differ by summation order only
+SINGLE_PAIRS = [
+    ("superquadrics", S.Superquadric([0.1, 0.15, 0.12], 4.0), S.Superquadric([0.12, 0.1, 0.1], 4.0),
+     np.array([0.05, 0.02, 0.3])),
+    ("ellipsoid-sphere", S.Ellipsoid([0.3, 0.2, 0.1]), S.Sphere(0.15), np.array([0.1, 0.4, 0.2])),
+    ("barr superquadric-plane", S.Superquadric([0.2, 0.1, 0.3], (4.0, 2.0)),
+     S.HalfSpace([0.0, 0.0, 1.0], -0.6), np.zeros(3)),
+    ("superellipse-ellipse (2D)", S.Superellipse([0.3, 0.1], 6.0), S.Ellipse([0.2, 0.25]),
+     np.array([0.1, 0.5])),
+]
+
+
+@pytest.mark.parametrize("name, first, second, offset", SINGLE_PAIRS, ids=[p[0] for p in SINGLE_PAIRS])
+def test_compiled_single_function_solve_matches_the_python_rows(name, first, second, offset, monkeypatch):
+    """closest._Solver.solve_single (eqs 15-18 of two single-function bodies in one compiled call)
+    against the same solve on _scaled_form's Python rows: the same points, multipliers and
+    iterations to round-off."""
+    from implicit_contact import closest as cl
+    dim = first.dim
+    if dim == 3:
+        R1, R2 = Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix(), Rotation.from_rotvec([0.3, -0.2, 0.1]).as_matrix()
+    else:
+        R1, R2 = (np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]]) for t in (0.3, -0.7))
+    pose1, pose2 = (R1, np.zeros(dim)), (R2, offset)
+    calls = []
+    compiled = cl._Solver.solve_single
+
+    def counted(self, z0, lo, hi):
+        calls.append(1)
+        return compiled(self, z0, lo, hi)
+
+    monkeypatch.setattr(cl._Solver, "solve_single", counted)
+    fast = cl.closest_points(first, pose1, second, pose2)
+    assert calls, "the compiled path was not taken"
+
+    def python_rows(self, z0, lo, hi):
+        fun, jac, _, _ = cl._scaled_form(self.B1, self.B2, 0)
+        return self.solve(fun, jac, z0, lo, hi)
+
+    monkeypatch.setattr(cl._Solver, "solve_single", python_rows)
+    slow = cl.closest_points(first, pose1, second, pose2)
+    assert fast.success and slow.success and fast.status == slow.status
+    assert fast.iterations == slow.iterations
+    for a, b in ((fast.a1, slow.a1), (fast.a2, slow.a2), (fast.normal, slow.normal)):
+        assert np.allclose(a, b, rtol=0.0, atol=ROUND_OFF)
+    assert abs(fast.distance - slow.distance) <= ROUND_OFF
