@@ -1094,25 +1094,6 @@ def _matvec(J, v):
 ORDER_REFILL = 1.5
 
 
-_ORDERS: dict = {}      # stored pattern (n, its hash) -> [column order of some nonzeros, their fill]
-_ORDERS_KEPT = 8
-
-
-def _column_order(indptr, indices, nz_ptr, nz_idx) -> list:
-    """[sparse_lu.column_order of the nonzero pattern (nz_ptr, nz_idx), None], or the entry last
-    made for the same stored pattern (indptr, indices), [order, the entries of the factors it gave
-    first]: a step's solves share their problem's pattern, and the nonzeros of one iterate order
-    the next ones nearly as well (_SparsePattern watches the fill)."""
-    key = (len(indptr), len(indices), hash(indices.tobytes()), hash(indptr.tobytes()))
-    entry = _ORDERS.get(key)
-    if entry is None:
-        entry = [sparse_lu.column_order(nz_ptr, nz_idx), None]
-        if len(_ORDERS) >= _ORDERS_KEPT:
-            _ORDERS.pop(next(iter(_ORDERS)))
-        _ORDERS[key] = entry
-    return entry
-
-
 class _SparsePattern:
     """The Newton step of solve_mcp on a sparse J, kept per CSR pattern of J (a step problem's is
     fixed while its layout is, formulation.StepProblem._sparse_pattern): H = diag(da) + diag(db) J
@@ -1121,8 +1102,9 @@ class _SparsePattern:
     is then solved with the transposed factors. Without it, each iteration built H, a diagonal
     matrix, their sum and a CSC copy as scipy objects: 0.4 ms of Python an iteration next to
     SuperLU's 0.9 ms (27 superquadrics in a box, ~700 unknowns). The column order is SuperLU's
-    COLAMD of the first iterate's nonzeros, kept for the pattern (_column_order) until the factors
-    grow by ORDER_REFILL. sparse_lu against SuperLU (scipy.sparse.linalg.splu, COLAMD), the
+    COLAMD of the first iterate's nonzeros, kept for the solve until the factors grow by
+    ORDER_REFILL (per solve, not shared between solves: a solve's round-off then depends on its
+    problem and start alone, and a campaign run replays the same in a fresh process). sparse_lu against SuperLU (scipy.sparse.linalg.splu, COLAMD), the
     factorisations of 40 steps of those superquadrics (n median 826): 0.67 ms against 0.96 ms,
     factors 1.07 times as large at the median (at most 1.85); bench_many_bodies' landed steps,
     the same Newton iterations: 42 -> 30 ms (30 bodies), 175 -> 139 ms (100 bodies). A pattern
@@ -1135,7 +1117,7 @@ class _SparsePattern:
         diagonal = np.flatnonzero(self.indices == self.rows)
         self.diag = diagonal if len(diagonal) == n and np.array_equal(self.rows[diagonal], np.arange(n)) else None
         self.ip64, self.ix64 = self.indptr.astype(np.int64), self.indices.astype(np.int64)
-        self.order = None
+        self.order = self.fill = None
         self.capacity = 0
 
     def matches(self, J) -> bool:
@@ -1159,16 +1141,14 @@ class _SparsePattern:
         if self.order is None:
             ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
             m = sparse_lu.nonzero_pattern(self.ip64, self.ix64, data, ptr, idx)
-            self.order = _column_order(self.ip64, self.ix64, ptr, idx[:m])
-        order = self.order
+            self.order, self.fill = sparse_lu.column_order(ptr, idx[:m]), None
         self.capacity = max(self.capacity, 3 * int(np.count_nonzero(data)) + n)
-        lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, order[0], capacity=self.capacity)
+        lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, self.order, capacity=self.capacity)
         self.capacity = max(self.capacity, lu.nnz)
-        if lu.ok and order[1] is None:
-            order[1] = lu.nnz
-        elif lu.ok and lu.nnz > ORDER_REFILL * order[1] + n:
+        if lu.ok and self.fill is None:
+            self.fill = lu.nnz
+        elif lu.ok and lu.nnz > ORDER_REFILL * self.fill + n:
             self.order = None             # the nonzeros moved on: a new column order next time
-            _ORDERS.clear()
         if not lu.ok:
             return None
         d = lu.solve(-Phi, "T")
