@@ -435,6 +435,12 @@ def _scaled_form(B1: _Body, B2: _Body, k1: int):
         r30 = -f_i(a1),                  r31 = -g_j(a2);
     d r28 = [I + l_k1 Hc, -I, c (l_k1), l_k1 grad f_i (l_i)], d r29 = [Hc, sum l_j Hg_j,
     grad f_i (l_i), grad g_j (l_j)].
+
+    Two single-function bodies are solved with these rows compiled (_single_rows, through
+    _Solver.solve_single); these serve the rest. (One compiled kernel for every case changes the
+    round-off of intersections' solves, and with it the path of the face campaign's guard run of
+    recovery.resume_watched, which then no longer needs that recovery: left for when the guard has
+    a new run.)
     """
     d, m1, m2 = B1.dim, B1.m, B2.m
     n = 2 * d + m1 + m2
