@@ -864,9 +864,12 @@ class _Solver:
         None and why "failed" or "inside" (a root with a1 = a2 inside body 1: overlapping)."""
         B1, B2 = self.B1, self.B2
         dim = B1.dim
-        fun, jac, lo, hi = _scaled_form(B1, B2, k1)
         z0 = np.concatenate([a1, a2, l1, l2])
-        sol = self.solve_single(z0, lo, hi) if B1.m == 1 and B2.m == 1 else self.solve(fun, jac, z0, lo, hi)
+        if B1.m == 1 and B2.m == 1:
+            sol = self.solve_single(z0, np.r_[np.full(2 * dim, -np.inf), 0.0, 0.0], np.full(len(z0), np.inf))
+        else:
+            fun, jac, lo, hi = _scaled_form(B1, B2, k1)
+            sol = self.solve(fun, jac, z0, lo, hi)
         if not sol.success:
             return None, "failed"
         z = sol.x

@@ -1212,7 +1212,9 @@ SPARSE_SOLVE_TOL = 1e-4
 
 
 def _solves(H, d, rhs) -> bool:
-    if not math.isfinite(d @ d):
-        return False
-    r = H @ d - rhs
-    return bool(r @ r <= SPARSE_SOLVE_TOL ** 2 * (rhs @ rhs))
+    """Whether d solves the scipy matrix H's system to SPARSE_SOLVE_TOL (sparse_lu.residual_ok, the
+    check of _SparsePattern's own solves)."""
+    H = H.tocsr()
+    return bool(sparse_lu.residual_ok(H.indptr.astype(np.int64), H.indices.astype(np.int64), H.data,
+                                      np.ascontiguousarray(d, dtype=float), np.ascontiguousarray(rhs, dtype=float),
+                                      SPARSE_SOLVE_TOL))
