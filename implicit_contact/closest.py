@@ -495,8 +495,14 @@ def _scaled_form(B1: _Body, B2: _Body, k1: int):
         J[j2, i2] = -gG
         return J
 
-    lower = np.concatenate([np.full(2 * d, -np.inf), np.zeros(m1 + m2)])
-    return fun, jac, lower, np.full(n, np.inf)
+    return (fun, jac) + _point_bounds(d, m1, m2)
+
+
+def _point_bounds(d, m1, m2):
+    """The bounds of z = [a1, a2, l1 (m1), l2 (m2)] in _scaled_form and _hat_form: points free,
+    multipliers >= 0."""
+    n = 2 * d + m1 + m2
+    return np.concatenate([np.full(2 * d, -np.inf), np.zeros(m1 + m2)]), np.full(n, np.inf)
 
 
 def _hat_form(B1: _Body, B2: _Body):
@@ -538,8 +544,7 @@ def _hat_form(B1: _Body, B2: _Body):
         J[j2, i2] = -gG
         return J
 
-    lower = np.concatenate([np.full(2 * d, -np.inf), np.zeros(m1 + m2)])
-    return fun, jac, lower, np.full(n, np.inf)
+    return (fun, jac) + _point_bounds(d, m1, m2)
 
 
 def _depth_form(B1: _Body, B2: _Body):
@@ -866,7 +871,7 @@ class _Solver:
         dim = B1.dim
         z0 = np.concatenate([a1, a2, l1, l2])
         if B1.m == 1 and B2.m == 1:
-            sol = self.solve_single(z0, np.r_[np.full(2 * dim, -np.inf), 0.0, 0.0], np.full(len(z0), np.inf))
+            sol = self.solve_single(z0, *_point_bounds(dim, 1, 1))
         else:
             fun, jac, lo, hi = _scaled_form(B1, B2, k1)
             sol = self.solve(fun, jac, z0, lo, hi)
