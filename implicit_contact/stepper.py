@@ -1681,6 +1681,10 @@ class ImplicitContactStepper:
         problem.refresh(h, blocks, kins, specs, supports, source)
         return problem
 
+    def _impulse_speed(self, h) -> float:
+        """u_p = max(h g, IMPULSE_SPEED): a pair's impulse unit is s_p = m u_p (m its lighter body)."""
+        return max(h * max(self._gravity_norm, 1.0), IMPULSE_SPEED)
+
     def _pair_spec(self, i, j, h, body_pos, states):
         scene = self.scene
         oi, oj = self._objects[i], self._objects[j]
@@ -1705,7 +1709,7 @@ class ImplicitContactStepper:
         # m h g, what holds a body at rest, but at least m IMPULSE_SPEED, what stops it from a
         # slow approach (an impact at h = 1e-5 is 1e5 units of m h g otherwise)
         masses = [self._masses[b.index] for b in (b1, b2) if b.kind != adapter.FIXED]
-        s_p = min(masses) * max(h * max(self._gravity_norm, 1.0), IMPULSE_SPEED)
+        s_p = min(masses) * self._impulse_speed(h)
         last = self._last.get(key)
         # friction rows for pairs that touched at the last step; the others get them if they touch
         with_friction = friction.active and last is not None and last["p_n"] > _TOUCH * s_p

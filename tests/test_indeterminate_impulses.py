@@ -5,6 +5,12 @@ The scene is a table: one rigid body with four box legs, landing flat on a groun
 slides and spins. Four parallel leg faces on a plane leave the normal impulses a warp mode
 (+ - + -) that no velocity sees, and sticking legs share the body's tangential and torsional
 impulse: the step's Jacobian is singular in those directions.
+
+The legs land sliding (the table spins at 2 rad/s), and by default a new contact that clearly
+slides starts its friction re-solve sliding (recovery._clearly_sliding): that landing then takes
+2 substeps with or without this recovery (measured). The guards below land the table as every
+new contact used to land, from a sticking start (recovery.SLIDE_RATIO = inf), the start a contact
+that may stick still gets; their landing stalls next to a solution and needs this recovery.
 """
 import numpy as np
 import pytest
@@ -55,11 +61,20 @@ def _land_and_rest(steps):
     return reports, table
 
 
-def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight():
-    """With the proximal re-solve the landing step needs 2 substeps (measured: its frictionless
-    solve at h / 2 stalled at natural residual 4e-5 with p_n = (21, 0, 0, 24) on the legs, and
-    converged in 2 proximal steps); without it, 4. The table then rests: zero velocities, and the
-    legs' normal impulses sum to m g h in every resting step (however they share it)."""
+@pytest.fixture
+def sticking_start(monkeypatch):
+    """Every new contact's friction re-solve starts sticking (see the module's docstring)."""
+    monkeypatch.setattr(recovery, "SLIDE_RATIO", np.inf)
+
+
+@pytest.mark.parametrize("slide_ratio", [recovery.SLIDE_RATIO, np.inf])
+def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight(monkeypatch, slide_ratio):
+    """From the sticking start (SLIDE_RATIO = inf), with the proximal re-solve the landing step
+    needs 2 substeps (measured: its frictionless solve at h / 2 stalled at natural residual 4e-5
+    with p_n = (21, 0, 0, 24) on the legs, and converged in 2 proximal steps); without it, 4. The table then rests: zero velocities, and the
+    legs' normal impulses sum to m g h in every resting step (however they share it). The same
+    holds with the default sliding start."""
+    monkeypatch.setattr(recovery, "SLIDE_RATIO", slide_ratio)
     reports, table = _land_and_rest(60)
     assert all(r.success for r in reports)
     assert reports[LANDING].substeps <= 2
@@ -71,7 +86,7 @@ def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight():
     assert sum(c.p_n for c in last.contacts) == pytest.approx(MASS * 9.81 * H, rel=WEIGHT_RTOL)
 
 
-def test_without_the_proximal_re_solve_the_landing_is_halved_twice(monkeypatch):
+def test_without_the_proximal_re_solve_the_landing_is_halved_twice(monkeypatch, sticking_start):
     """The same scene with indeterminate_impulses left out of the recoveries, and without the
     solver's min-map endgame (step_solver.ENDGAME_RESIDUAL), which lands it with 2 substeps on its
     own (next test): the landing step needs 4 substeps (the guard that the test above exercises
@@ -83,7 +98,7 @@ def test_without_the_proximal_re_solve_the_landing_is_halved_twice(monkeypatch):
     assert reports[LANDING].substeps == 4
 
 
-def test_the_min_map_endgame_alone_lands_the_table_with_one_halving(monkeypatch):
+def test_the_min_map_endgame_alone_lands_the_table_with_one_halving(monkeypatch, sticking_start):
     """Without indeterminate_impulses, the solves that stall next to a solution (natural residual
     <= step_solver.ENDGAME_RESIDUAL, J singular along the warp mode and the shared torsions) are
     finished by ncp.newton_min_map's least-norm steps: the landing needs 2 substeps, not 4, and
