@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 import implicit_contact as ic
+from implicit_contact import recovery
 
 G = 9.81
 PEN_TOL = 1e-8           # [m] allowed penetration: solver tolerance 1e-10 on rows of O(1)
@@ -298,3 +299,51 @@ def test_hexagon_tips_off_a_wedge_and_lands_on_a_face_2d():
     q = skel.getPositions()
     assert q[1] == pytest.approx(apothem, abs=2e-3)           # on the ground, lying on a face
     assert abs(math.remainder(q[2], np.pi / 3)) < 0.05
+
+
+def _ball_landing_step(vx, slide_ratio, monkeypatch):
+    """One step (h = 0.01) of a ball of radius 0.1 m, 1 mm over the ground falling at 1 m/s with
+    horizontal speed vx, mu = 0.5: (the pairs _clearly_sliding started sliding, the ball's
+    velocities after the step)."""
+    monkeypatch.setattr(recovery, "SLIDE_RATIO", slide_ratio)
+    h, m, r = 0.01, 1.0, 0.1
+    world = _world(h)
+    skel, body = _free_body(world, "ball", m, [0.4 * m * r * r] * 3, [0.0, 0.0, r + 1e-3])
+    skel.setVelocities([0.0, 0.0, 0.0, vx, 0.0, -1.0])
+    node = body.createShapeNode(dart.dynamics.SphereShape(r))
+    node.createCollisionAspect()
+    node.createDynamicsAspect().setFrictionCoeff(0.5)
+    _ground(world, dart_plane=True)
+    started = []
+    rows = recovery.friction_rows
+
+    def recorded(stepper, att, problem, result):
+        outcome = rows(stepper, att, problem, result)
+        if outcome is recovery.RETRY and att.added:
+            started.append(list(att.sliding))
+        return outcome
+
+    monkeypatch.setattr(recovery, "RECOVERIES", tuple(recorded if f is rows else f for f in recovery.RECOVERIES))
+    report = ic.ImplicitContactStepper(world).step()
+    assert report.success and report.substeps == 1
+    return started, skel.getVelocities()
+
+
+@pytest.mark.parametrize("vx, slides", [(0.0, False), (0.05, False), (2.0, False), (8.0, True)])
+def test_a_new_contact_starts_its_friction_re_solve_sliding_only_when_it_clearly_slides(vx, slides, monkeypatch):
+    """recovery._clearly_sliding: a ball landing at 1 m/s (p_n = m dv_n, dv_n ~ 1 m/s) with
+    horizontal speed 8 m/s slips more than SLIDE_RATIO (10) times what friction at the cone's edge
+    takes from it in the step (mu dv_n = 0.5 m/s): its friction re-solve starts sliding. Dropped
+    straight, at 5 cm/s or at 2 m/s (it slides too: rolling would need 2/7 of 2 m/s, but the ratio
+    is 4) it starts sticking. Either start reaches the same step (the start is not a decision):
+    the ball slides on at vx - mu dv_n with omega_y = 5/2 mu dv_n / r, or rolls."""
+    started, v = _ball_landing_step(vx, recovery.SLIDE_RATIO, monkeypatch)
+    assert started == [[0] if slides else []]
+    _, v_stick_start = _ball_landing_step(vx, math.inf, monkeypatch)
+    np.testing.assert_allclose(v, v_stick_start, atol=1e-9)
+    dv_n = 1.0 + G * 0.01 - 1e-3 / 0.01           # p_n / m: stop the fall (gap 1 mm closed in the step)
+    if vx > 3.5 * 0.5 * dv_n:                       # 1 + m r^2 / I = 3.5: friction cannot make it roll
+        assert v[3] == pytest.approx(vx - 0.5 * dv_n, rel=1e-6)
+        assert v[1] == pytest.approx(2.5 * 0.5 * dv_n / 0.1, rel=1e-6)
+    else:
+        assert v[3] == pytest.approx(v[1] * 0.1, abs=1e-9)       # rolls: v_x = omega_y r
