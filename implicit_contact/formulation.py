@@ -47,7 +47,7 @@ from .rows import dynamics as rd
 from .rows import support as rs
 from .rows import checks as rk
 from .rows import tables as rt
-from .rows.assemble import assemble
+from .rows.assemble import assemble, sparse_pattern
 
 SPARSE_MIN_UNKNOWNS = 250   # measured crossover of the dense and the sparse J + LU (comparisons/bench_many_bodies.py)
 
@@ -419,25 +419,18 @@ class StepProblem:
     def _sparse_pattern(self):
         """The CSR pattern of every plan's local block (fixed while the layout is): (slots: the data
         position of each local entry, slot offsets per plan, indices, indptr, the row scale of
-        each stored entry)."""
+        each stored entry); rows/assemble.sparse_pattern."""
         t = self.tables
         n = self.layout.n
-        nplan = len(t.loc_off) - 1
-        rows, cols, slot_off = [], [], [0]
-        for p in range(nplan):
-            ix = t.loc_idx[t.loc_off[p]:t.loc_off[p + 1]]
-            rows.append(np.repeat(ix, len(ix)))
-            cols.append(np.tile(ix, len(ix)))
-            slot_off.append(slot_off[-1] + len(ix) ** 2)
-        rows = np.concatenate(rows) if rows else np.zeros(0, np.int64)
-        cols = np.concatenate(cols) if cols else np.zeros(0, np.int64)
-        keys, slot = np.unique(rows * n + cols, return_inverse=True)
-        entry_rows = keys // n
+        sizes = np.diff(t.loc_off)
+        slot_off = np.zeros(len(sizes) + 1, np.int64)
+        np.cumsum(sizes * sizes, out=slot_off[1:])
+        slots, indices = np.empty(slot_off[-1], np.int64), np.empty(slot_off[-1], np.int64)
+        indptr = np.empty(n + 1, np.int64)
+        nnz = sparse_pattern(n, t.loc_idx, t.loc_off, slot_off, slots, indptr, indices)
+        entry_rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
         self._pattern_rows = entry_rows
-        indptr = np.zeros(n + 1, np.int64)
-        np.cumsum(np.bincount(entry_rows, minlength=n), out=indptr[1:])
-        self._pattern = (slot.ravel().astype(np.int64), np.array(slot_off, np.int64), (keys % n).astype(np.int64),
-                         indptr, t.scale[entry_rows])
+        self._pattern = (slots, slot_off, indices[:nnz].copy(), indptr, t.scale[entry_rows])
         return self._pattern
 
     # -- unknown vector helpers ---------------------------------------------------------------

@@ -187,6 +187,32 @@ def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
     np.testing.assert_allclose(rs.x, rd.x, rtol=1e-9, atol=1e-9)
 
 
+def test_sparse_pattern_is_the_union_of_the_plans_blocks_with_every_slot_on_its_entry():
+    """rows/assemble.sparse_pattern against a set oracle: overlapping plans of unsorted local
+    indices (as skeletons, pairs and supports share velocity columns), a row in no plan."""
+    from implicit_contact.rows.assemble import sparse_pattern
+    rng = np.random.default_rng(3)
+    n = 40
+    plans = [rng.choice(n - 1, size=size, replace=False) for size in (6, 1, 9, 4, 12, 6)]
+    loc_idx = np.concatenate(plans).astype(np.int64)
+    loc_off = np.cumsum([0] + [len(p) for p in plans]).astype(np.int64)
+    slot_off = np.cumsum([0] + [len(p) ** 2 for p in plans]).astype(np.int64)
+    slots, indices = np.empty(slot_off[-1], np.int64), np.empty(slot_off[-1], np.int64)
+    indptr = np.empty(n + 1, np.int64)
+    nnz = sparse_pattern(n, loc_idx, loc_off, slot_off, slots, indptr, indices)
+    expected = sorted({(int(r), int(c)) for p in plans for r in p for c in p})
+    assert nnz == len(expected) == indptr[n]
+    got = [(r, int(indices[k])) for r in range(n) for k in range(indptr[r], indptr[r + 1])]
+    assert got == expected                           # CSR, columns sorted within each row, no repeats
+    assert indptr[n - 1] == indptr[n]                # the last row is in no plan: empty
+    for p, ix in enumerate(plans):
+        L = len(ix)
+        for i in range(L):
+            for j in range(L):
+                k = slots[slot_off[p] + i * L + j]
+                assert indptr[ix[i]] <= k < indptr[ix[i] + 1] and indices[k] == ix[j]
+
+
 def test_transfer_maps_a_pair_whose_bodies_were_swapped_since_the_old_solve():
     """recovery._transfer from a solve kept before flip_intersections swapped a pair's bodies
     (the stepper's spec list is edited in place, so the old problem's own specs show the new

@@ -14,6 +14,8 @@ storage. Then the rows are scaled: F *= scale, J[i, :] *= scale[i].
 """
 from __future__ import annotations
 
+import numpy as np
+
 from .._jit import kernel
 from .bodies import body_states
 from .contact import pair_rows
@@ -87,3 +89,65 @@ def assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pai
                 si = scale[i]
                 for j in range(n):
                     J[i, j] *= si
+
+
+@kernel
+def sparse_pattern(n, loc_idx, loc_off, slot_off, slots, indptr, indices):
+    """The CSR pattern of the union of every plan's local block (rows and columns: its local
+    index) over n unknowns: indptr (n + 1) and indices (columns sorted within each row; room for
+    slot_off[-1] entries), and slots (slot_off[-1]): the data position of local entry (i, j) of
+    plan p at slots[slot_off[p] + i L + j], L the plan's size. Returns the number of entries.
+
+    Row r's columns are those of the plans whose local index holds r, so the pattern is built
+    row by row from the incidence of rows in plans (a plan's index has no repeats)."""
+    nplan = loc_off.shape[0] - 1
+    m_loc = loc_off[nplan]
+    plan_of = np.empty(m_loc, np.int64)
+    start = np.zeros(n + 1, np.int64)
+    for p in range(nplan):
+        for a in range(loc_off[p], loc_off[p + 1]):
+            plan_of[a] = p
+            start[loc_idx[a] + 1] += 1
+    for r in range(n):
+        start[r + 1] += start[r]
+    fill = start[:n].copy()
+    incidence = np.empty(m_loc, np.int64)      # per row, the positions in loc_idx that hold it
+    for a in range(m_loc):
+        r = loc_idx[a]
+        incidence[fill[r]] = a
+        fill[r] += 1
+    mark = np.full(n, -1, np.int64)
+    position = np.zeros(n, np.int64)
+    cols = np.empty(n, np.int64)
+    nnz = 0
+    indptr[0] = 0
+    for r in range(n):
+        m = 0
+        for e in range(start[r], start[r + 1]):
+            p = plan_of[incidence[e]]
+            for b in range(loc_off[p], loc_off[p + 1]):
+                c = loc_idx[b]
+                if mark[c] != r:
+                    mark[c] = r
+                    cols[m] = c
+                    m += 1
+        for t in range(1, m):               # insertion sort: a row has tens of columns
+            c = cols[t]
+            u = t - 1
+            while u >= 0 and cols[u] > c:
+                cols[u + 1] = cols[u]
+                u -= 1
+            cols[u + 1] = c
+        for t in range(m):
+            indices[nnz + t] = cols[t]
+            position[cols[t]] = nnz + t
+        for e in range(start[r], start[r + 1]):
+            a = incidence[e]
+            p = plan_of[a]
+            L = loc_off[p + 1] - loc_off[p]
+            base = slot_off[p] + (a - loc_off[p]) * L
+            for j in range(L):
+                slots[base + j] = position[loc_idx[loc_off[p] + j]]
+        nnz += m
+        indptr[r + 1] = nnz
+    return nnz
