@@ -430,7 +430,10 @@ class StepProblem:
         nnz = sparse_pattern(n, t.loc_idx, t.loc_off, slot_off, slots, indptr, indices)
         entry_rows = np.repeat(np.arange(n, dtype=np.int64), np.diff(indptr))
         self._pattern_rows = entry_rows
-        self._pattern = (slots, slot_off, indices[:nnz].copy(), indptr, t.scale[entry_rows])
+        # (scipy keeps a CSR matrix's indices in int32 when they fit, and checks their range on
+        # every construction unless they already are: 40 -> 18 us a Jacobian at 700 unknowns)
+        index = np.int32 if max(n, nnz) < np.iinfo(np.int32).max else np.int64
+        self._pattern = (slots, slot_off, indices[:nnz].astype(index), indptr.astype(index), t.scale[entry_rows])
         return self._pattern
 
     # -- unknown vector helpers ---------------------------------------------------------------
@@ -466,13 +469,22 @@ class StepProblem:
     # -- evaluation -----------------------------------------------------------------------------
     def fun(self, z):
         self._sync()
+        return self.fun_synced(z)
+
+    def jac(self, z):
+        self._sync()
+        return self.jac_synced(z)
+
+    def fun_synced(self, z):
+        """fun without reading the specs' k1 and tangent axes first: for a solver's iterations,
+        after one _sync (a loop over the pairs, 15 us an evaluation at 50 pairs)."""
         if self._key_f is None or not np.array_equal(z, self._key_f):
             self._F, _ = self._evaluate(z, False)
             self._key_f = z.copy()
         return self._F
 
-    def jac(self, z):
-        self._sync()
+    def jac_synced(self, z):
+        """jac after one _sync (fun_synced)."""
         if self._key_j is None or not np.array_equal(z, self._key_j):
             F, J = self._evaluate(z, True)
             self._F, self._key_f = F, z.copy()

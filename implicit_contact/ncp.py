@@ -1089,6 +1089,27 @@ def _matvec(J, v):
     return out
 
 
+@kernel
+def sparse_newton_matrix(indptr, indices, Jdata, da, db, diag, Phi, data, g):
+    """H = diag(da) + diag(db) J on J's CSR pattern (diag: the position of each row's diagonal
+    entry) into data, and g = H^T Phi; returns H's number of nonzero entries."""
+    n = indptr.shape[0] - 1
+    for i in range(n):
+        g[i] = 0.0
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            data[p] = Jdata[p] * db[i]
+        data[diag[i]] += da[i]
+    nonzero = 0
+    for i in range(n):
+        for p in range(indptr[i], indptr[i + 1]):
+            v = data[p]
+            g[indices[p]] += v * Phi[i]
+            if v != 0.0:
+                nonzero += 1
+    return nonzero
+
+
 # _SparsePattern keeps a column order while the factors it gives stay within this factor of the
 # entries the first one gave (the nonzeros of H change with the active pieces of the FB rows)
 ORDER_REFILL = 1.5
@@ -1132,17 +1153,16 @@ class _SparsePattern:
                       + sp.diags(da, format="csr"))
             g[:] = self.H.T @ Phi
             return _sparse_solve(self.H, -Phi)
-        data = self.data = J.data * db[self.rows]
-        data[self.diag] += da
+        data = self.data = np.empty(len(J.data))
+        nonzero = sparse_newton_matrix(self.ip64, self.ix64, J.data, da, db, self.diag, Phi, data, g)
         self.H = None
-        g[:] = np.bincount(self.indices, weights=data * Phi[self.rows], minlength=n)
         # H's CSR arrays read as CSC are H^T: factorised as they are, H d = -Phi is solved with the
         # transposed factors (sparse_lu skips the stored zeros)
         if self.order is None:
             ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
             m = sparse_lu.nonzero_pattern(self.ip64, self.ix64, data, ptr, idx)
             self.order, self.fill = sparse_lu.column_order(ptr, idx[:m]), None
-        self.capacity = max(self.capacity, 3 * int(np.count_nonzero(data)) + n)
+        self.capacity = max(self.capacity, 3 * nonzero + n)
         lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, self.order, capacity=self.capacity)
         self.capacity = max(self.capacity, lu.nnz)
         if lu.ok and self.fill is None:

@@ -97,7 +97,8 @@ def solve_stage2(stage, x0, options: ncp.SolverOptions) -> ncp.McpResult:
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
     if problem._sparse:
-        return ncp.solve_mcp(problem.fun, problem.jac, z0, problem.lower, problem.upper, options)
+        problem._sync()
+        return ncp.solve_mcp(problem.fun_synced, problem.jac_synced, z0, problem.lower, problem.upper, options)
     x0 = np.ascontiguousarray(z0, dtype=float)
     if x0.shape != problem.lower.shape or not math.isfinite(x0 @ x0) and not np.isfinite(x0).all():
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
