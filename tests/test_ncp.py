@@ -586,3 +586,24 @@ def test_min_map_newton_reports_nan_as_not_finite():
         return np.array([x[0] - 1.0])
     r = newton_min_map(fun, lambda x: np.array([[np.inf]]), [0.0], -np.inf, np.inf, 1e-10)
     assert r.status is Status.NOT_FINITE and r.x[0] == 0.0
+
+
+def test_sparse_newton_matrix_is_diag_da_plus_diag_db_j_and_its_transposed_product():
+    """ncp.sparse_newton_matrix on a CSR pattern with stored zeros, against scipy's products."""
+    from implicit_contact import ncp
+    rng = np.random.default_rng(11)
+    n = 30
+    J = (sp.random(n, n, density=0.15, random_state=rng, format="csr") + sp.eye(n, format="csr")).tocsr()
+    J.sort_indices()
+    J.data[::5] = 0.0                                  # stored zeros stay stored
+    da, db, Phi = rng.uniform(0.0, 1.0, n), rng.uniform(-1.0, 1.0, n), rng.standard_normal(n)
+    db[::4] = 0.0                                      # rows without J: H's row is its diagonal
+    rows = np.repeat(np.arange(n), np.diff(J.indptr))
+    diag = np.flatnonzero(J.indices == rows)
+    data, g = np.empty(J.nnz), np.empty(n)
+    nonzero = ncp.sparse_newton_matrix(J.indptr.astype(np.int64), J.indices.astype(np.int64), J.data, da, db, diag,
+                                       Phi, data, g)
+    H = (sp.diags(da) + sp.diags(db) @ J).toarray()
+    np.testing.assert_allclose(sp.csr_matrix((data, J.indices, J.indptr), shape=(n, n)).toarray(), H, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(g, H.T @ Phi, rtol=1e-14, atol=1e-14)
+    assert nonzero == np.count_nonzero(data) == np.count_nonzero(H)
