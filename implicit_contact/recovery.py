@@ -301,29 +301,46 @@ def restart_sliding(stepper, att: Attempt, problem, result):
 
 
 SLIDING_WATCH = 15      # the iteration at which a re-solve restart_sliding may follow is looked at
+WARM_WATCH = 20         # the iteration at which the step's first solve (from the warm start) is looked at
 
 
 def watched_solve(stepper, att: Attempt, problem, z0):
-    """The solve of the step's MCP from z0 (stepper._solve); the re-solve right after friction_rows
-    added rows, which restart_sliding may follow, is looked at after SLIDING_WATCH iterations: not
-    converged, stalled (ncp.SolverOptions.watch) and with a pair stuck sliding (sigma ~ 0, friction outside the
-    cone), it ends there and restart_sliding takes over (if that and the recoveries after it fail,
-    resume_watched goes on with it); otherwise it goes on from its iterate to the iteration limit.
+    """The solve of the step's MCP from z0 (stepper._solve), two of them watched
+    (ncp.SolverOptions.watch: ended at a given iteration if not converged and stalled):
 
-    The case: such re-solves stall in the FB valley for the whole limit and then restart_sliding
-    solves the step in a few iterations. Measured on 27 exponent-4 superquadrics dropped into a
-    walled box (comparisons.bench_step's scene), 60 steps: 28 solves ran to their limit of 50
-    iterations, 1700 of the 3237 Newton iterations. With the watch, comparisons.stability's box
-    scenes (16, 20, 27 and 30 superquadrics, 210 steps) took 8544 Newton iterations instead of
-    10808 (the face campaign's counts did not change). Guarded by
-    tests/test_stability_cases.py::test_watched_resolve_hands_a_stalled_sticking_start_to_restart_sliding_sooner."""
+    * the step's first solve, from the warm start, at WARM_WATCH iterations: stalled there, it
+      ends and the recoveries take over as after any failed solve (cold_start, friction_rows,
+      ...); if they fail too, resume_watched goes on with it. The case: on the superquadric boxes
+      of comparisons.stability (16, 20, 27 and 30 bodies, 210 steps each) warm solves that
+      stalled ran to their limit of 50 iterations and then a cold start converged in 10-20:
+      42377 Newton iterations and 127 s in all without the watch, 32380 and 94 s with it (15:
+      36121, 30: 31846; the scenes are chaotic, so each count moves by a few thousand with any
+      change). Guarded by tests/test_stability_cases.py::test_a_stalled_warm_solve_hands_over_at_the_watch.
+    * the re-solve right after friction_rows added rows, which restart_sliding may follow, at
+      SLIDING_WATCH iterations: not converged, stalled and with a pair stuck sliding (sigma ~ 0,
+      friction outside the cone), it ends there and restart_sliding takes over (if that and the
+      recoveries after it fail, resume_watched goes on with it); otherwise it goes on from its
+      iterate to the iteration limit. The case: such re-solves stall in the FB valley for the
+      whole limit and then restart_sliding solves the step in a few iterations. Measured on 27
+      exponent-4 superquadrics dropped into a walled box (comparisons.bench_step's scene), 60
+      steps: 28 solves ran to their limit of 50 iterations, 1700 of the 3237 Newton iterations.
+      With the watch, comparisons.stability's box scenes (16, 20, 27 and 30 superquadrics, 210
+      steps) took 8544 Newton iterations instead of 10808 (the face campaign's counts did not
+      change). Guarded by
+      tests/test_stability_cases.py::test_watched_resolve_hands_a_stalled_sticking_start_to_restart_sliding_sooner."""
     fresh, att.fresh_rows = att.fresh_rows, False
     if att.proximal:
         att.proximal = False
         return stepper._solve(problem, z0, watch=PROXIMAL_WATCH, proximal=True)
-    if not fresh or att.watched is not None or att.resumed or SLIDING_WATCH <= 0:
-        return stepper._solve(problem, z0)
     limit = stepper._solver_options().max_iterations
+    if att.index == 0 and not fresh and att.watched is None and not att.resumed and 0 < WARM_WATCH < limit:
+        result = stepper._solve(problem, z0, watch=WARM_WATCH)
+        if result.status is ncp.Status.MAX_ITERATIONS and result.iterations == WARM_WATCH:
+            att.watched = (att.index, problem, result.x)
+        return result
+    # (one re-solve is watched a step; a watched first solve gives way to it in att.watched)
+    if not fresh or (att.watched is not None and att.watched[0] > 0) or att.resumed or SLIDING_WATCH <= 0:
+        return stepper._solve(problem, z0)
     result = stepper._solve(problem, z0, watch=SLIDING_WATCH)
     if not (result.status is ncp.Status.MAX_ITERATIONS and result.iterations == SLIDING_WATCH < limit):
         return result
