@@ -248,31 +248,36 @@ class StepProblem:
 
         def functions_of(obj):
             key = id(obj.functions)
-            if key not in offsets:
-                offsets[key] = (sum(len(r) for r in rows), len(obj.functions))
-                rows.append([_function_rows(fn) for fn in obj.functions])
-            return offsets[key]
+            at = offsets.get(key)
+            if at is None:
+                at = offsets[key] = (len(rows), len(obj.functions))
+                rows.extend(_function_rows(fn) for fn in obj.functions)
+            return at
 
-        pair_i = np.zeros((len(specs), rc.NPI), np.int64)
-        for k, (spec, sl) in enumerate(zip(specs, layout.pairs)):
+        pair_rows = []
+        for spec, sl in zip(specs, layout.pairs):
             kin1, kin2 = bodies[spec.obj1.body], bodies[spec.obj2.body]
             if spec.obj1.body == spec.obj2.body and kin1.vindex is not None:
                 raise ValueError("a pair needs two different bodies")
             f1, m1 = functions_of(spec.obj1)
             f2, m2 = functions_of(spec.obj2)
             c0 = int(sl.rows_geo[0])
-            end = max(sl.p_n, sl.sigma, sl.p_r, sl.dbar, sl.dn, sl.p_nr) + 1
-            rel = lambda idx: int(idx) - c0 if int(idx) >= 0 else -1
-            pair_i[k] = [spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
-                         int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
-                         int(sl.sigma >= 0), int(sl.p_r >= 0),
-                         _layer_scheme(spec),
-                         spec.compliant_side, c0, end - c0,
-                         rel(sl.a1[0]), len(sl.a1), rel(sl.a2[0]), len(sl.a2), rel(sl.l1[0]), rel(sl.l2[0]),
-                         rel(sl.p_n), rel(sl.p_t[0]) if len(sl.p_t) else -1, rel(sl.p_r), rel(sl.sigma),
-                         rel(sl.dbar), rel(sl.dn), rel(sl.p_nr), kin1.ndof, kin2.ndof, int(spec.start_frame is not None),
-                         rel(sl.s)]
-        fpar = np.array([r for group in rows for r in group]) if rows else np.zeros((1, 25))
+            p_n, p_r, sigma, dbar, dn, p_nr, s_col = (int(sl.p_n), int(sl.p_r), int(sl.sigma), int(sl.dbar), int(sl.dn),
+                                                      int(sl.p_nr), int(sl.s))
+            end = max(p_n, sigma, p_r, dbar, dn, p_nr) + 1
+            pair_rows.append([spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
+                              int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
+                              int(sigma >= 0), int(p_r >= 0),
+                              _layer_scheme(spec),
+                              spec.compliant_side, c0, end - c0,
+                              int(sl.a1[0]) - c0, len(sl.a1), int(sl.a2[0]) - c0, len(sl.a2), int(sl.l1[0]) - c0,
+                              int(sl.l2[0]) - c0, p_n - c0, int(sl.p_t[0]) - c0 if len(sl.p_t) else -1,
+                              p_r - c0 if p_r >= 0 else -1, sigma - c0 if sigma >= 0 else -1,
+                              dbar - c0 if dbar >= 0 else -1, dn - c0 if dn >= 0 else -1,
+                              p_nr - c0 if p_nr >= 0 else -1, kin1.ndof, kin2.ndof, int(spec.start_frame is not None),
+                              s_col - c0 if s_col >= 0 else -1])
+        pair_i = np.array(pair_rows, np.int64).reshape(len(specs), rc.NPI)
+        fpar = np.array(rows) if rows else np.zeros((1, 25))
         sk_i = np.zeros((len(skeletons), rd.NKI), np.int64)
         off = 0
         for s, vidx in enumerate(layout.v_index):
@@ -296,7 +301,7 @@ class StepProblem:
             sup_mun[s] = sp.friction.mu * sp.friction.normal_force
         self._pos_rows = np.asarray(_position_rows(layout), np.int64)
         # plans' local indices: skeletons, pairs, supports
-        locs = [np.r_[np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]), layout.joint_index[s]].astype(np.int64)
+        locs = [np.concatenate([np.arange(sk_i[s, 0], sk_i[s, 0] + sk_i[s, 1]), layout.joint_index[s]]).astype(np.int64)
                 for s in range(len(sk_i))]
         for k, spec in enumerate(specs):
             parts = [bodies[o.body].vindex for o in (spec.obj1, spec.obj2) if bodies[o.body].vindex is not None]

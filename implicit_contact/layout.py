@@ -99,6 +99,40 @@ class PairSlots:
         self.columns = np.concatenate([self.a1, self.a2, [self.s] if self.s >= 0 else [], self.l1, self.l2,
                                        [self.p_n], self.rows_fric]).astype(np.int64)
 
+    _ARRAYS = ("a1", "a2", "l1", "l2", "p_t", "rows_geo", "rows_l1", "rows_l2", "rows_fric", "columns")
+
+    def moved(self, base: int) -> "PairSlots":
+        """These slots with every index moved by base (build_layout's per-kind templates); the
+        same as allocating the block at column base, without __post_init__'s work: the index
+        arrays are views of one moved copy of this template's."""
+        flat = self.__dict__.get("_flat")
+        if flat is None:
+            parts = [getattr(self, name) for name in PairSlots._ARRAYS]
+            ends = np.cumsum([len(x) for x in parts])
+            flat = self.__dict__["_flat"] = (np.concatenate(parts).astype(np.int64), ends - [len(x) for x in parts], ends)
+        values, lo, hi = flat
+        moved = values + base
+        out = object.__new__(PairSlots)
+        out.a1, out.a2, out.l1, out.l2, out.p_t, out.rows_geo, out.rows_l1, out.rows_l2, out.rows_fric, out.columns = (
+            moved[a:b] for a, b in zip(lo.tolist(), hi.tolist()))
+        out.p_n, out.row_n = self.p_n + base, self.row_n + base
+        out.p_r = self.p_r + base if self.p_r >= 0 else -1
+        out.sigma = self.sigma + base if self.sigma >= 0 else -1
+        out.dbar = self.dbar + base if self.dbar >= 0 else -1
+        out.dn = self.dn + base if self.dn >= 0 else -1
+        out.p_nr = self.p_nr + base if self.p_nr >= 0 else -1
+        out.s = self.s + base if self.s >= 0 else -1
+        out.a1s, out.a2s, out.l1s, out.l2s = (_moved_slice(self.a1s, base), _moved_slice(self.a2s, base),
+                                              _moved_slice(self.l1s, base), _moved_slice(self.l2s, base))
+        out.p_ts, out.rows_l1s, out.rows_l2s = (_moved_slice(self.p_ts, base), _moved_slice(self.rows_l1s, base),
+                                                _moved_slice(self.rows_l2s, base))
+        out.l1_bounded, out.l2_bounded = self.l1_bounded, self.l2_bounded
+        return out
+
+
+def _moved_slice(sl, base):
+    return slice(sl.start + base, sl.stop + base) if sl.stop > sl.start else sl
+
 
 @dataclass
 class Layout:
@@ -166,88 +200,124 @@ def _tangent_basis(n, e):
 def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = (), joint_bounds: tuple = ()) -> Layout:
     """Allocate z: velocities first, then each pair's unknowns, then the support blocks'
     (support.SupportSpec), then per skeleton its joint rows (joint_bounds: per skeleton, None or
-    the (lower, upper) arrays of its rows' unknowns, rows/dynamics.py); rows follow the same order."""
+    the (lower, upper) arrays of its rows' unknowns, rows/dynamics.py); rows follow the same order.
+    A pair's block is its kind's (_pair_template) moved to its first column."""
     lower, upper = [], []
     col = 0
     v_index = []
     for nv in nv_per_skeleton:
         v_index.append(np.arange(col, col + nv))
-        lower += [-np.inf] * nv
-        upper += [np.inf] * nv
+        lower.append(np.full(nv, -np.inf))
+        upper.append(np.full(nv, np.inf))
         col += nv
     slots = []
     for spec in specs:
-        d = spec.dim
-        n1, n2 = len(spec.obj1.functions), len(spec.obj2.functions)
-        red1, red2 = spec.obj1.fixed_halfspace, spec.obj2.fixed_halfspace
-        na1 = d - 1 if red1 else d
-        na2 = d - 1 if red2 else d
-        base = col
-        a1 = np.arange(col, col + na1); col += na1
-        a2 = np.arange(col, col + na2); col += na2
-        # multipliers made free by a reduced side come next, so that the 2d geometric rows
-        # pair with exactly the free unknowns a1, a2 and those multipliers.
-        free_l1 = red1
-        free_l2 = red2
-        geo_free = na1 + na2 + int(free_l1) + int(free_l2)
-        if geo_free != 2 * d:
-            raise AssertionError("geometric rows and free unknowns do not balance")
-        l1 = np.arange(col, col + n1) if free_l1 else None
-        if free_l1:
-            col += n1
-        l2 = np.arange(col, col + n2) if free_l2 else None
-        if free_l2:
-            col += n2
-        rows_geo = np.arange(base, base + 2 * d)
-        lower += [-np.inf] * geo_free
-        upper += [np.inf] * geo_free
-        s_col = -1
-        if spec.cone_form:
-            s_col = col; col += 1
-            lower.append(-np.inf); upper.append(np.inf)
-        rows_l1 = np.arange(0)
-        rows_l2 = np.arange(0)
-        if not free_l1:
-            l1 = np.arange(col, col + n1); rows_l1 = l1.copy(); col += n1
-            lower += [0.0] * n1; upper += [np.inf] * n1
-        if not free_l2:
-            l2 = np.arange(col, col + n2); rows_l2 = l2.copy(); col += n2
-            lower += [0.0] * n2; upper += [np.inf] * n2
-        p_n = col; col += 1
-        lower.append(0.0); upper.append(np.inf)
-        p_t = np.arange(0)
-        p_r = sigma = -1
-        rows_fric = np.arange(0)
-        if spec.with_friction:
-            p_t = np.arange(col, col + d - 1); col += d - 1
-            lower += [-np.inf] * (d - 1); upper += [np.inf] * (d - 1)
-            if d == 3 and spec.friction.torsion:
-                p_r = col; col += 1
-                lower.append(-np.inf); upper.append(np.inf)
-            sigma = col; col += 1
-            lower.append(0.0); upper.append(np.inf)
-            rows_fric = np.arange(p_t[0], col)
-        dbar = dn = p_nr = -1
-        if spec.compliance is not None:
-            dbar, dn = col, col + 1
-            col += 2
-            lower += [-np.inf, -np.inf]; upper += [np.inf, np.inf]
-            if math.isfinite(spec.compliance.delta_max):
-                p_nr = col; col += 1
-                lower.append(0.0); upper.append(np.inf)
-        slots.append(PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2,
-                               p_n, rows_fric, dbar, dn, p_nr, s_col))
-    support_slots, col = allocate_supports(col, supports, lower, upper)
+        template, lo, hi = _pair_template(spec)
+        slots.append(template.moved(col))
+        lower.append(lo)
+        upper.append(hi)
+        col += len(lo)
+    rest_lower, rest_upper = [], []
+    support_slots, col = allocate_supports(col, supports, rest_lower, rest_upper)
     joint_index = []
     for s in range(len(nv_per_skeleton)):
         bounds = joint_bounds[s] if s < len(joint_bounds) else None
         nj = 0 if bounds is None else len(bounds[0])
         joint_index.append(np.arange(col, col + nj))
         if nj:
-            lower += [float(x) for x in bounds[0]]
-            upper += [float(x) for x in bounds[1]]
+            rest_lower += [float(x) for x in bounds[0]]
+            rest_upper += [float(x) for x in bounds[1]]
             col += nj
-    return Layout(col, v_index, slots, np.array(lower), np.array(upper), tuple(support_slots), joint_index)
+    lower.append(np.array(rest_lower, float))
+    upper.append(np.array(rest_upper, float))
+    return Layout(col, v_index, slots, np.concatenate(lower), np.concatenate(upper), tuple(support_slots),
+                  joint_index)
+
+
+_PAIR_TEMPLATES = {}
+
+
+def _pair_template(spec):
+    """(PairSlots of the pair's block at column 0, its unknowns' lower and upper bounds), kept per
+    kind of block: what build_layout allocates depends on these alone."""
+    comp = spec.compliance
+    key = (spec.dim, len(spec.obj1.functions), len(spec.obj2.functions), bool(spec.obj1.fixed_halfspace),
+           bool(spec.obj2.fixed_halfspace), spec.cone_form, bool(spec.with_friction),
+           bool(spec.with_friction and spec.dim == 3 and spec.friction.torsion),
+           None if comp is None else math.isfinite(comp.delta_max))
+    held = _PAIR_TEMPLATES.get(key)
+    if held is None:
+        lower, upper = [], []
+        template = _allocate_pair(spec, 0, lower, upper)
+        for name in ("a1", "a2", "l1", "l2", "p_t", "rows_geo", "rows_l1", "rows_l2", "rows_fric", "columns",
+                     "l1_bounded", "l2_bounded"):
+            getattr(template, name).flags.writeable = False
+        held = _PAIR_TEMPLATES[key] = (template, np.array(lower, float), np.array(upper, float))
+    return held
+
+
+def _allocate_pair(spec, col, lower, upper):
+    """One pair's PairSlots from column col; its unknowns' bounds appended to lower and upper."""
+    d = spec.dim
+    n1, n2 = len(spec.obj1.functions), len(spec.obj2.functions)
+    red1, red2 = spec.obj1.fixed_halfspace, spec.obj2.fixed_halfspace
+    na1 = d - 1 if red1 else d
+    na2 = d - 1 if red2 else d
+    base = col
+    a1 = np.arange(col, col + na1); col += na1
+    a2 = np.arange(col, col + na2); col += na2
+    # multipliers made free by a reduced side come next, so that the 2d geometric rows
+    # pair with exactly the free unknowns a1, a2 and those multipliers.
+    free_l1 = red1
+    free_l2 = red2
+    geo_free = na1 + na2 + int(free_l1) + int(free_l2)
+    if geo_free != 2 * d:
+        raise AssertionError("geometric rows and free unknowns do not balance")
+    l1 = np.arange(col, col + n1) if free_l1 else None
+    if free_l1:
+        col += n1
+    l2 = np.arange(col, col + n2) if free_l2 else None
+    if free_l2:
+        col += n2
+    rows_geo = np.arange(base, base + 2 * d)
+    lower += [-np.inf] * geo_free
+    upper += [np.inf] * geo_free
+    s_col = -1
+    if spec.cone_form:
+        s_col = col; col += 1
+        lower.append(-np.inf); upper.append(np.inf)
+    rows_l1 = np.arange(0)
+    rows_l2 = np.arange(0)
+    if not free_l1:
+        l1 = np.arange(col, col + n1); rows_l1 = l1.copy(); col += n1
+        lower += [0.0] * n1; upper += [np.inf] * n1
+    if not free_l2:
+        l2 = np.arange(col, col + n2); rows_l2 = l2.copy(); col += n2
+        lower += [0.0] * n2; upper += [np.inf] * n2
+    p_n = col; col += 1
+    lower.append(0.0); upper.append(np.inf)
+    p_t = np.arange(0)
+    p_r = sigma = -1
+    rows_fric = np.arange(0)
+    if spec.with_friction:
+        p_t = np.arange(col, col + d - 1); col += d - 1
+        lower += [-np.inf] * (d - 1); upper += [np.inf] * (d - 1)
+        if d == 3 and spec.friction.torsion:
+            p_r = col; col += 1
+            lower.append(-np.inf); upper.append(np.inf)
+        sigma = col; col += 1
+        lower.append(0.0); upper.append(np.inf)
+        rows_fric = np.arange(p_t[0], col)
+    dbar = dn = p_nr = -1
+    if spec.compliance is not None:
+        dbar, dn = col, col + 1
+        col += 2
+        lower += [-np.inf, -np.inf]; upper += [np.inf, np.inf]
+        if math.isfinite(spec.compliance.delta_max):
+            p_nr = col; col += 1
+            lower.append(0.0); upper.append(np.inf)
+    return PairSlots(a1, a2, l1, l2, p_n, p_t, p_r, sigma, rows_geo, rows_l1, rows_l2, p_n, rows_fric, dbar, dn,
+                     p_nr, s_col)
 
 
 @dataclass

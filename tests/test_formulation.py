@@ -187,6 +187,29 @@ def test_sparse_jacobian_equals_the_dense_one_on_a_many_body_problem(dim):
     np.testing.assert_allclose(rs.x, rd.x, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_layout_from_moved_templates_is_the_layout_allocated_pair_by_pair(dim):
+    """build_layout moves one template per kind of pair block (layout._pair_template, PairSlots.moved);
+    on pairs of every kind (with and without friction, on a fixed half-space, the cone form, a
+    quasi-rigid pair) each block equals the one allocated in place, field by field."""
+    from implicit_contact import layout as lay
+    problem, _ = _many_body_problem(dim, "dense")
+    layout = problem.layout
+    col = sum(len(v) for v in layout.v_index)
+    lower, upper = [], []
+    for spec, moved in zip(problem.specs, layout.pairs):
+        start = len(lower)
+        ref = lay._allocate_pair(spec, col + start, lower, upper)
+        for name in lay.PairSlots._ARRAYS + ("l1_bounded", "l2_bounded"):
+            assert getattr(moved, name).dtype == getattr(ref, name).dtype
+            np.testing.assert_array_equal(getattr(moved, name), getattr(ref, name), err_msg=name)
+        for name in ("p_n", "p_r", "sigma", "row_n", "dbar", "dn", "p_nr", "s", "a1s", "a2s", "l1s", "l2s", "p_ts",
+                     "rows_l1s", "rows_l2s"):
+            assert getattr(moved, name) == getattr(ref, name), name
+    np.testing.assert_array_equal(layout.lower[col:col + len(lower)], lower)
+    np.testing.assert_array_equal(layout.upper[col:col + len(upper)], upper)
+
+
 def test_sparse_pattern_is_the_union_of_the_plans_blocks_with_every_slot_on_its_entry():
     """rows/assemble.sparse_pattern against a set oracle: overlapping plans of unsorted local
     indices (as skeletons, pairs and supports share velocity columns), a row in no plan."""
