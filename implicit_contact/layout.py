@@ -108,26 +108,27 @@ class PairSlots:
         flat = self.__dict__.get("_flat")
         if flat is None:
             parts = [getattr(self, name) for name in PairSlots._ARRAYS]
-            ends = np.cumsum([len(x) for x in parts])
-            flat = self.__dict__["_flat"] = (np.concatenate(parts).astype(np.int64), ends - [len(x) for x in parts], ends)
-        values, lo, hi = flat
+            ends = np.cumsum([len(x) for x in parts]).tolist()
+            flat = self.__dict__["_flat"] = (np.concatenate(parts).astype(np.int64),
+                                             list(zip([0] + ends[:-1], ends)))
+        values, bounds = flat
         moved = values + base
         out = object.__new__(PairSlots)
         out.a1, out.a2, out.l1, out.l2, out.p_t, out.rows_geo, out.rows_l1, out.rows_l2, out.rows_fric, out.columns = (
-            moved[a:b] for a, b in zip(lo.tolist(), hi.tolist()))
+            moved[a:b] for a, b in bounds)
         out.p_n, out.row_n = self.p_n + base, self.row_n + base
-        out.p_r = self.p_r + base if self.p_r >= 0 else -1
-        out.sigma = self.sigma + base if self.sigma >= 0 else -1
-        out.dbar = self.dbar + base if self.dbar >= 0 else -1
-        out.dn = self.dn + base if self.dn >= 0 else -1
-        out.p_nr = self.p_nr + base if self.p_nr >= 0 else -1
-        out.s = self.s + base if self.s >= 0 else -1
+        out.p_r, out.sigma, out.dbar, out.dn, out.p_nr, out.s = (
+            _moved_index(at, base) for at in (self.p_r, self.sigma, self.dbar, self.dn, self.p_nr, self.s))
         out.a1s, out.a2s, out.l1s, out.l2s = (_moved_slice(self.a1s, base), _moved_slice(self.a2s, base),
                                               _moved_slice(self.l1s, base), _moved_slice(self.l2s, base))
         out.p_ts, out.rows_l1s, out.rows_l2s = (_moved_slice(self.p_ts, base), _moved_slice(self.rows_l1s, base),
                                                 _moved_slice(self.rows_l2s, base))
         out.l1_bounded, out.l2_bounded = self.l1_bounded, self.l2_bounded
         return out
+
+
+def _moved_index(at, base):
+    return at + base if at >= 0 else -1      # -1: the block has no such unknown
 
 
 def _moved_slice(sl, base):
@@ -249,8 +250,7 @@ def _pair_template(spec):
     if held is None:
         lower, upper = [], []
         template = _allocate_pair(spec, 0, lower, upper)
-        for name in ("a1", "a2", "l1", "l2", "p_t", "rows_geo", "rows_l1", "rows_l2", "rows_fric", "columns",
-                     "l1_bounded", "l2_bounded"):
+        for name in PairSlots._ARRAYS + ("l1_bounded", "l2_bounded"):
             getattr(template, name).flags.writeable = False
         held = _PAIR_TEMPLATES[key] = (template, np.array(lower, float), np.array(upper, float))
     return held
