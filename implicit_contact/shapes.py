@@ -145,6 +145,13 @@ def _finite_vector(value, dim: int | None, name: str) -> np.ndarray:
     return v
 
 
+def _nonzero_direction(value, dim: int) -> np.ndarray:
+    d = _finite_vector(value, dim, "direction")
+    if not np.any(d):
+        raise ValueError("direction must be a non-zero vector")
+    return d
+
+
 def _finite_scalar(value, name: str) -> float:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{name} must be a finite real number, got {value!r}")
@@ -308,6 +315,11 @@ class ConvexFunction(ABC):
 
     def support(self, direction) -> np.ndarray:
         """A boundary point maximising direction . x (body frame), where a closed form exists."""
+        return self._support_point(_nonzero_direction(direction, self.dim))
+
+    def _support_point(self, d: np.ndarray) -> np.ndarray:
+        """support of a checked direction (a non-zero float vector of length dim): for callers
+        that made it themselves (closest.py's start, many calls per pair)."""
         raise NotImplementedError(f"{type(self).__name__} has no closed-form support point "
                                   "(unbounded or no formula).")
 
@@ -322,10 +334,10 @@ class ConvexFunction(ABC):
         Generic: Newton on the convex phi(tau) = f(origin + tau u) from a tau where phi > 0;
         from the right of the root a convex increasing phi makes Newton monotone.
         """
-        o = _finite_vector(origin, self.dim, "origin")
-        u = _finite_vector(direction, self.dim, "direction")
-        if not np.any(u):
-            raise ValueError("direction must be a non-zero vector")
+        return self._ray_exit(_finite_vector(origin, self.dim, "origin"), _nonzero_direction(direction, self.dim))
+
+    def _ray_exit(self, o: np.ndarray, u: np.ndarray) -> float:
+        """ray_exit of a checked origin and direction (float vectors of length dim, u != 0)."""
         if self.value(o) >= 0.0:
             return 0.0
         tau = self.length_scale / float(np.linalg.norm(u))
@@ -443,15 +455,12 @@ class _Primitive(ConvexFunction):
     def _placed(self, code, **par) -> np.ndarray:
         return _sk.pack(code, self.dim, center=self._c0, rotation=self._R0, **par)
 
-    def support(self, direction) -> np.ndarray:
-        d = _finite_vector(direction, self.dim, "direction")
-        if not np.any(d):
-            raise ValueError("direction must be a non-zero vector")
+    def _support_point(self, d: np.ndarray) -> np.ndarray:
         xl = self._local_support(d @ self._R0 if self._rotated else d)
         return self._c0 + (self._R0 @ xl if self._rotated else xl)
 
     def _local_support(self, d: np.ndarray) -> np.ndarray:
-        return ConvexFunction.support(self, d)
+        return ConvexFunction._support_point(self, d)
 
     def _world_placement(self, rotation, translation):
         R, t = _check_pose(rotation, translation, self.dim)
@@ -502,9 +511,8 @@ class _Ball(_Primitive):
     def _local_support(self, d):
         return self.radius * d / np.linalg.norm(d)
 
-    def ray_exit(self, origin, direction):
-        o = self._to_local(_finite_vector(origin, self.dim, "origin"))
-        u = _finite_vector(direction, self.dim, "direction")
+    def _ray_exit(self, o, u):
+        o = self._to_local(o)
         u = u @ self._R0 if self._rotated else u
         return _quadric_exit(o / self.radius, u / self.radius)
 
@@ -576,9 +584,8 @@ class _EllipsoidBase(_Primitive):
         D = self.semi_axes * d
         return self.semi_axes * D / np.linalg.norm(D)
 
-    def ray_exit(self, origin, direction):
-        o = self._to_local(_finite_vector(origin, self.dim, "origin"))
-        u = _finite_vector(direction, self.dim, "direction")
+    def _ray_exit(self, o, u):
+        o = self._to_local(o)
         u = u @ self._R0 if self._rotated else u
         return _quadric_exit(o / self.semi_axes, u / self.semi_axes)
 
@@ -675,11 +682,8 @@ class _PowerSumBase(_Primitive):
     def length_scale(self) -> float:
         return float(np.max(self.semi_axes))
 
-    def ray_exit(self, origin, direction):
-        o = self._to_local(_finite_vector(origin, self.dim, "origin"))
-        u = _finite_vector(direction, self.dim, "direction")
-        if not np.any(u):
-            raise ValueError("direction must be a non-zero vector")
+    def _ray_exit(self, o, u):
+        o = self._to_local(o)
         u = u @ self._R0 if self._rotated else u
         P, U = o / self.semi_axes, u / self.semi_axes
         q = self._n1
@@ -832,11 +836,7 @@ class _HalfSpaceBase(_Primitive):
     def length_scale(self) -> float:
         return math.inf
 
-    def ray_exit(self, origin, direction):
-        o = _finite_vector(origin, self.dim, "origin")
-        u = _finite_vector(direction, self.dim, "direction")
-        if not np.any(u):
-            raise ValueError("direction must be a non-zero vector")
+    def _ray_exit(self, o, u):
         n, d = self.plane()
         nu = float(n @ u)
         gap = d - float(n @ o)
@@ -897,11 +897,8 @@ class InfiniteCylinder(_Primitive):
     def length_scale(self) -> float:
         return self.radius
 
-    def ray_exit(self, origin, direction):
-        o = self._to_local(_finite_vector(origin, 3, "origin"))
-        u = _finite_vector(direction, 3, "direction")
-        if not np.any(u):
-            raise ValueError("direction must be a non-zero vector")
+    def _ray_exit(self, o, u):
+        o = self._to_local(o)
         u = u @ self._R0 if self._rotated else u
         if not np.any(u[:2]):
             return 0.0 if o[0] ** 2 + o[1] ** 2 >= self.radius ** 2 else math.inf
@@ -1259,9 +1256,10 @@ class Intersection:
     def support(self, direction) -> np.ndarray:
         """A boundary point maximising direction . x: a vertex of a polytope, the closed form of a
         capped cylinder; NotImplementedError for other intersections."""
-        d = _finite_vector(direction, self.dim, "direction")
-        if not np.any(d):
-            raise ValueError("direction must be a non-zero vector")
+        return self._support_point(_nonzero_direction(direction, self.dim))
+
+    def _support_point(self, d: np.ndarray) -> np.ndarray:
+        """support of a checked direction (ConvexFunction._support_point)."""
         if self._poly is not None and self._poly.bounded and len(self._poly.b) == len(self._functions):
             V = self._poly.vertices
             return V[int(np.argmax(V @ d))].copy()
@@ -1295,7 +1293,11 @@ class Intersection:
 
     def ray_exit(self, origin, direction) -> float:
         """First exit of the ray from the body: the smallest member exit (origin inside)."""
-        return min(f.ray_exit(origin, direction) for f in self._functions)
+        return self._ray_exit(_finite_vector(origin, self.dim, "origin"), _nonzero_direction(direction, self.dim))
+
+    def _ray_exit(self, o: np.ndarray, u: np.ndarray) -> float:
+        """ray_exit of a checked origin and direction (ConvexFunction._ray_exit)."""
+        return min(f._ray_exit(o, u) for f in self._functions)
 
     def mass_properties(self, density) -> MassProperties:
         rho = _density(density)
