@@ -350,19 +350,26 @@ class ConvexFunction(ABC):
             tau *= 2.0
         else:
             return math.inf
-        return _newton_from_right(lambda s: self.value(o + s * u),
-                                  lambda s: float(self.gradient(o + s * u) @ u), tau)
+        def phi(s):
+            v, grad = self.value_gradient(o + s * u)
+            return v, float(grad @ u)
+
+        return _newton_from_right(phi, tau)
 
 
-def _newton_from_right(phi, dphi, tau: float) -> float:
+_EPS = float(np.finfo(float).eps)
+
+
+def _newton_from_right(phi, tau: float) -> float:
+    """Newton on phi(tau) = 0 from a tau right of the root; phi(t) -> (value, derivative), one
+    evaluation of the function for both."""
     for _ in range(RAY_NEWTON_ITERATIONS):
-        v = phi(tau)
-        d = dphi(tau)
+        v, d = phi(tau)
         if not (d > 0.0):
             break
         step = v / d
         tau_new = tau - step
-        if tau_new >= tau or step <= 4.0 * np.finfo(float).eps * tau:
+        if tau_new >= tau or step <= 4.0 * _EPS * tau:
             tau = min(tau, tau_new) if tau_new > 0.0 else tau
             break
         tau = tau_new
@@ -706,11 +713,13 @@ class _PowerSumBase(_Primitive):
         # The unit ball of g lies in [-1, 1]^dim, inside the ball of radius sqrt(dim).
         tau = (float(np.linalg.norm(P)) + math.sqrt(self.dim)) / float(np.linalg.norm(U))
 
-        def dphi(t):
-            grad = local_value((P + t * U) * self.semi_axes, 1)[1]
-            return float((grad @ self._R0 if self._rotated else grad) @ (U * self.semi_axes))
+        def phi(t):
+            # g - 1 and its derivative along U from one evaluation (value and gradient)
+            value, grad, _ = local_value((P + t * U) * self.semi_axes, 1)
+            slope = float((grad @ self._R0 if self._rotated else grad) @ (U * self.semi_axes))
+            return (float(value) * q / self._s + 1.0) - 1.0, slope * q / self._s
 
-        return _newton_from_right(lambda t: g(P + t * U) - 1.0, lambda t: dphi(t) * q / self._s, tau)
+        return _newton_from_right(phi, tau)
 
 
 class Superquadric(_PowerSumBase):
