@@ -435,11 +435,17 @@ class _Primitive(ConvexFunction):
 
     def _eval(self, x, order: int):
         """Values, gradients and Hessians (body frame) of shape_kernels at the points x."""
-        x = _points(x, self.dim)
         par = self.__dict__.get("_par")
         if par is None:
             self.kernel_params
             par = self.__dict__["_par"]
+        if (type(x) is np.ndarray and x.ndim == 1 and x.shape[0] == self.dim and x.dtype == np.float64
+                and x.flags.c_contiguous):
+            # one point, the most frequent call (closest.py's start): the same kernel on a (1, dim)
+            # view, without the conversions below (10.4 -> ~4 us)
+            v, g, H = _sk.evaluate_many(par, x[None], order)
+            return v.reshape(()), g[0], H[0]
+        x = _points(x, self.dim)
         X = np.ascontiguousarray(x.reshape(-1, self.dim), dtype=float)
         v, g, H = _sk.evaluate_many(par, X, order)
         lead = x.shape[:-1]
