@@ -81,7 +81,7 @@ from . import ncp
 from . import shape_kernels as sk
 from ._jit import kernel
 from .ncp import SolverOptions, Status, solve_mcp
-from .shapes import ConvexFunction, HalfPlane, HalfSpace, Intersection, Union
+from .shapes import ConvexFunction, HalfPlane, HalfSpace, Intersection, Union, _nonzero
 
 __all__ = ["closest_points", "ClosestPointResult", "ClosestPointOptions"]
 
@@ -275,11 +275,9 @@ class _Body:
         """Scaled support point along a world direction, or None without a closed form."""
         if not self.shape.bounded:
             return None
-        d = self.R.T @ direction
-        if not d.any():
-            raise ValueError("direction must be a non-zero vector")
         try:
-            xb = self.shape._support_point(d)     # (the shape's unchecked support: d is made here)
+            # (the shape's support without its input check: the direction is made here)
+            xb = self.shape._support_point(_nonzero(self.R.T @ direction))
         except NotImplementedError:
             return None
         return (self.R @ xb + self.p - self.o) / self.L
@@ -288,9 +286,7 @@ class _Body:
         """Fraction s in [0, inf] of the segment origin -> target where the ray leaves the body."""
         ob = self.to_body(origin_y)
         ub = self._B @ (target_y - origin_y)
-        if not ub.any():
-            raise ValueError("direction must be a non-zero vector")
-        return float(self.shape._ray_exit(ob, ub))     # (unchecked: ob and ub are made here)
+        return float(self.shape._ray_exit(ob, _nonzero(ub)))     # (unchecked: ob and ub are made here)
 
     def ray_origin(self, target_y, interior_y):
         """A point strictly inside, near the target: the interior point for a bounded body; for
