@@ -1140,6 +1140,7 @@ class _SparsePattern:
         self.ip64, self.ix64 = self.indptr.astype(np.int64), self.indices.astype(np.int64)
         self.order = self.fill = None
         self.capacity = 0
+        self.lu_workspace = sparse_lu.Workspace(n)
 
     def matches(self, J) -> bool:
         return (J.indptr.shape == self.indptr.shape and J.indices.shape == self.indices.shape
@@ -1163,7 +1164,8 @@ class _SparsePattern:
             m = sparse_lu.nonzero_pattern(self.ip64, self.ix64, data, ptr, idx)
             self.order, self.fill = sparse_lu.column_order(ptr, idx[:m]), None
         self.capacity = max(self.capacity, 3 * nonzero + n)
-        lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, self.order, capacity=self.capacity)
+        lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, self.order, capacity=self.capacity,
+                                workspace=self.lu_workspace)
         self.capacity = max(self.capacity, lu.nnz)
         if lu.ok and self.fill is None:
             self.fill = lu.nnz
