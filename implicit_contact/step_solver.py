@@ -87,12 +87,29 @@ def solve_stage2(stage, x0, options: ncp.SolverOptions) -> ncp.McpResult:
     x = np.ascontiguousarray(x0, dtype=float)      # (the bounds are Stage2's own, well formed)
     lo, hi = stage.lower, stage.upper
     n = x.shape[0]
-    buf = ncp.Buffers(n, options.max_iterations)
+    buf, J, H, opt = _stage2_buffers(n, options)
     _solve_stage2(stage.M, stage.u, stage.hf, stage.scale, stage.G, stage.pi, stage.pf, stage.jg, stage.ju,
-                  stage.jk, stage.jcol, x, lo, hi, ncp.options_array(options), buf.x, buf.F, buf.xt, buf.Ft,
+                  stage.jk, stage.jcol, x, lo, hi, opt, buf.x, buf.F, buf.xt, buf.Ft,
                   buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz, buf.history, buf.steps,
-                  buf.info, buf.fbuf, buf.work, np.empty((n, n)), np.empty((n, n)))
+                  buf.info, buf.fbuf, buf.work, J, H)
     return ncp.result_from_buffers(buf, options)
+
+
+_STAGE2_BUFFERS = {}
+
+
+def _stage2_buffers(n, options):
+    """(ncp.Buffers, J, H, options array) of a stage-2 solve of n unknowns, kept per (n, options)
+    (a stage 2 is built afresh every step; making them cost ~20 us of a ~0.5 ms split step). The
+    solver writes every entry it reads (step problems reuse theirs the same way: _buffers), and
+    solve_stage2's result holds copies."""
+    entry = _STAGE2_BUFFERS.get((n, id(options)))
+    if entry is None or entry[4] is not options:
+        if len(_STAGE2_BUFFERS) > 16:
+            _STAGE2_BUFFERS.clear()
+        entry = _STAGE2_BUFFERS[(n, id(options))] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)),
+                                                     np.empty((n, n)), ncp.options_array(options), options)
+    return entry[:4]
 
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:

@@ -728,8 +728,7 @@ class ImplicitContactStepper:
             first, second = spec.objects
             p2, a2 = self._world.p_now[second.body], rep[k]
             moved = math.sqrt(sum((float(a2[rc.R_A2 + i]) - (float(p2[i]) + float(frame[12 + i]))) ** 2 for i in range(3)))
-            size = min(first.piece.length_scale, second.piece.length_scale)
-            if moved > SPLIT_JUMP * size:
+            if moved > SPLIT_JUMP * min(first.size, second.size):
                 jumped.append(k)
         return jumped
 
@@ -891,8 +890,10 @@ class ImplicitContactStepper:
         problem._evaluated_at(z)
         rep = problem._rep
         closed, cps, bodies, index = [], [], [], {}
-        vcol = dict(zip(att.involved, np.cumsum([0] + [len(u[s]) for s in att.involved]).tolist()))
-        nv = sum(len(u[s]) for s in att.involved)
+        vcol, nv = {}, 0
+        for s in att.involved:
+            vcol[s] = nv
+            nv += len(u[s])
         for k, spec in enumerate(att.specs):
             sl = problem.layout.pairs[k]
             p_n = float(z[sl.p_n])
@@ -1124,6 +1125,7 @@ class ImplicitContactStepper:
         code, new_f, new_z, new_rep, opts = self._repeat_kernel(ctx, h, w.MB1, w.FB1, False, False)
         if code != rk_repeat.OK or self._jumped_pairs(new_rep, att.specs):
             return None
+        problem._rep_at = new_z        # (the kernel left the pairs' reports at new_z: _stage2 reads them)
         for k, spec in enumerate(att.specs):
             if new_z[lay.pairs[k].p_n] > 0.0 and float(new_rep[k, rc.R_N:rc.R_N + spec.dim] @ spec.normal_l) < 0.0:
                 return None                  # a normal that turned over: _check_solution refuses it
@@ -2184,6 +2186,7 @@ class _Object:
         self.fixed_halfspace, self.friction, self.label = fixed_halfspace, friction, label
         self.compliance = compliance
         self.key = label
+        self.size = float(piece.length_scale)    # (a property computed afresh, ~8 us a call)
         # flat faces (a polytope, a capped cylinder, a plane): its contact patch can be an area
         face = piece.face_points() if piece.dim == 3 else np.empty((0, 2))
         self.faceted = piece.dim == 3 and contact_patch.faceted(piece)
