@@ -834,7 +834,10 @@ class ImplicitContactStepper:
             k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
             if not k:
                 continue
-            C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
+            if rec.kind == adapter.FREE and rec.spring_damper is None:     # (MB then holds DART's M)
+                C = adapter.free_coriolis_jacobian(w.MB[mo:mo + k * k].reshape(k, k), w.V[o:o + 3])
+            else:
+                C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
             M1 = w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C
             w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
             if rec.spring_damper is not None:
