@@ -1070,7 +1070,8 @@ class ImplicitContactStepper:
                 spec.friction = replace(spec.friction, e_r=e_r)
                 t.pair_f[k, rc.Q_ER] = e_r
         self._read_dart()
-        code, new_f, new_z, new_rep, opts = self._repeat_kernel(ctx, h, w.MB, w.FB, True, self.options.skip_far_pairs)
+        code, new_f, new_z, new_rep, opts, counts = self._repeat_kernel(ctx, h, w.MB, w.FB, True,
+                                                                        self.options.skip_far_pairs)
         if code != rk_repeat.OK:
             return None
         self._commit_world(h)
@@ -1085,7 +1086,7 @@ class ImplicitContactStepper:
         if problem.supports:
             self._last_support = {sp.key: (new_z[ss.y].copy(), float(new_z[ss.sigma]), problem.support_wrench(new_z, s))
                                   for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
-        iterations, residual = self._repeat_counts(ctx, opts)
+        iterations, residual = counts
         buf = ctx.solver[3]
         message = (f"Converged in {int(buf.info[ncp.I_ITER])} iterations: natural residual "
                    f"{float(buf.fbuf[ncp.F_RESIDUAL]):.3g} <= tol {opts.tol:.3g}.")
@@ -1125,7 +1126,7 @@ class ImplicitContactStepper:
             t.pair_i[k, rc.P_SPLIT] = int(frame is not None)
             t.pair_f[k, rc.Q_N0:rc.NPF] = frame if frame is not None else 0.0
         # (kinematics done by _read; no far pairs left out under order 2)
-        code, new_f, new_z, new_rep, opts = self._repeat_kernel(ctx, h, w.MB1, w.FB1, False, False)
+        code, new_f, new_z, new_rep, opts, counts = self._repeat_kernel(ctx, h, w.MB1, w.FB1, False, False)
         if code != rk_repeat.OK or self._jumped_pairs(new_rep, att.specs):
             return None
         problem._rep_at = new_z        # (the kernel left the pairs' reports at new_z: _stage2 reads them)
@@ -1137,7 +1138,7 @@ class ImplicitContactStepper:
             u[s] = new_z[lay.v_index[att.sk_pos[s]]]
         if self._uncovered(frozenset(map(tuple, ctx.candidates.tolist())), u, self._world_vector(u), state):
             return None
-        iterations, residual = self._repeat_counts(ctx, opts)
+        iterations, residual = counts
         new_memory = memory.carried_arrays(new_f, new_z, new_rep)
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
         first = (problem, att, new_z, iterations, residual, new_memory, contacts)
@@ -1152,7 +1153,7 @@ class ImplicitContactStepper:
         """repeat_kernels.step on ctx's problem from the last step's memory, with this step's
         solver options; coal asked again once on NEED_COAL. MB, FB: the skeleton tables the rows
         read; kin: the kernel does the kinematics (False: _read did). (code, the next memory's
-        pair parameters, solution and reports, the options)."""
+        pair parameters, solution and reports, the options, (iterations, residual): _repeat_counts)."""
         w, problem, memory = self._world, ctx.problem, self._last
         opts = self._solver_options()
         if self._budget is not None:
@@ -1172,9 +1173,10 @@ class ImplicitContactStepper:
             code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
         problem._invalidate()
         problem.h = h
+        counts = self._repeat_counts(ctx, opts)
         if self._budget is not None:
-            self._budget.spend(self._repeat_counts(ctx, opts)[0])
-        return code, new_f, new_z, new_rep, opts
+            self._budget.spend(counts[0])
+        return code, new_f, new_z, new_rep, opts, counts
 
     @staticmethod
     def _repeat_counts(ctx, opts):
