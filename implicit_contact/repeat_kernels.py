@@ -109,16 +109,18 @@ def _reports_at(T, x, F):
 
 
 @kernel
-def step(W, T, S, SP, C, MB_src, FB_src, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, mem_rep, new_f,
+def step(B, MB_src, FB_src, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_z, mem_rep, new_f,
          new_z, new_rep, h, tol, solver_tol, touch, axis_limit, use_far):
     """The whole step between reading DART and writing it back, when it repeats the last one's
     structure (ImplicitContactStepper._repeat_step): kinematics, the candidate pairs (the same as
     the context's), the far pairs (the same), prepare, the solve (S; polished in SP), finish and
-    the next memory (new_f, new_z, new_rep). Returns OK or why the general step must take over
-    (the world buffers then hold the step's kinematics, as _read leaves them). kin: do the
-    kinematics (False: a second call after coal was queried on fresh fat boxes, NEED_COAL, or
-    the caller did them). MB_src, FB_src: the skeletons' mass matrices and forces the rows read
-    (W.MB, W.FB; order 2's first stage: its MB1, FB1, rattle.py eq R1)."""
+    the next memory (new_f, new_z, new_rep). B: the bundles (bundles.Repeat) of the world W, the
+    problem's tables T, the solver S and polishing solver SP, the context C. Returns OK or why
+    the general step must take over (the world buffers then hold the step's kinematics, as _read
+    leaves them). kin: do the kinematics (False: a second call after coal was queried on fresh
+    fat boxes, NEED_COAL, or the caller did them). MB_src, FB_src: the skeletons' mass matrices
+    and forces the rows read (W.MB, W.FB; order 2's first stage: its MB1, FB1, rattle.py eq R1)."""
+    W, T, S, SP, C = B.W, B.T, B.S, B.SP, B.C
     if kin and kinematics(W, h, 10.0 * tol, FALSE):
         return FIXED_MOVED
     if not grown_boxes(W, fat_lo, fat_hi):

@@ -1160,9 +1160,10 @@ class ImplicitContactStepper:
             opts = self._budget.admit(opts)
         if ctx.solver is None or ctx.solver[0] is not opts:
             ctx.solver = (opts,) + step_solver.solver_bundles(problem, opts)
-        S, SP = ctx.solver[1], ctx.solver[2]
+            ctx.repeat = bundles.repeat(W=w.bundle, T=problem.bundle, S=ctx.solver[1], SP=ctx.solver[2],
+                                        C=ctx.bundle)
         new_f, new_z, new_rep = np.empty_like(problem.tables.pair_f), np.empty(problem.layout.n), np.empty_like(problem._rep)
-        args = (w.bundle, problem.bundle, S, SP, ctx.bundle, MB, FB)
+        args = (ctx.repeat, MB, FB)
         tail = (memory.pair_i, memory.pair_f, memory.z, memory.rep, new_f, new_z, new_rep, h,
                 self.options.contact_tolerance, self.options.solver.tol, _TOUCH, _AXIS_LIMIT, use_far)
         fat = self._fat
@@ -2124,6 +2125,7 @@ class _Context:
     eligible: np.ndarray       # per solved pair: whether a known gap can leave it out (_gap_bound_applies)
     bundle: object = None      # the arrays repeat_kernels.step compares and fills (bundles.Context)
     solver: tuple = None       # (options, their solver bundles and buffers: step_solver.solver_bundles)
+    repeat: object = None      # the bundles repeat_kernels.step reads, in one (bundles.Repeat; with solver)
     sup_y: np.ndarray = None   # the support blocks' warm starts (y, sigma) it is given
     patches: list = ()         # solved pairs whose torsion radius is their patch's (_patch_applies)
 
