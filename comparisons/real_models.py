@@ -11,6 +11,9 @@ its <mimic> relations read with ic.urdf_mimic_joints. Then, alternately, one imp
 one DART step (interleaved, so the machine's drifts hit both), h = 1e-3, for --duration of
 simulated time or until --budget seconds of implicit wall time.
 
+Each model runs in its own process, --workers at once; each worker's BLAS gets its share of
+the cores (OPENBLAS_NUM_THREADS = cores / workers, unless set: _share_cores).
+
 One row per model: has collision geometry, accepted (or the refusal's sentence), steps done,
 retried steps (substeps > 1), failure (StepFailure's message), deepest penetration reported by a
 contact (gap < 0), median and max implicit time per step and the median ratio to DART's, root
@@ -173,6 +176,20 @@ def run_model(path, root, duration, budget, order=1, progress=None) -> dict:
     return row
 
 
+BLAS_THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _share_cores(workers):
+    """Give each worker process its share of the cores for BLAS (numpy's and scipy's OpenBLAS,
+    which the dense solves of a robot's 100-200 unknowns call), unless the user set it: the
+    workers are spawned after this and read it when they import numpy. Without it, 2 workers on 2
+    cores ran 2 OpenBLAS threads each: measured 2026-12-06 with --workers 2, talos_reduced_box's
+    median step 7.2 ms (3.1 ms with one BLAS thread a worker, as with one worker alone) and
+    tiago_no_hand cut by the budget at t = 0.48 s (with one thread a worker it completes 1 s)."""
+    if not any(v in os.environ for v in BLAS_THREAD_VARIABLES):
+        os.environ["OPENBLAS_NUM_THREADS"] = str(max(1, (os.cpu_count() or 1) // workers))
+
+
 def _child(conn, target, args):
     conn.send(target(*args))
     conn.close()
@@ -319,7 +336,9 @@ def main(argv=None):
         rows.append(row)
         _print_row(row)
 
-    run_isolated([(run_model, (p, root, args.duration, args.budget, args.order)) for p in paths], max(args.workers, 1),
+    workers = max(args.workers, 1)
+    _share_cores(workers)
+    run_isolated([(run_model, (p, root, args.duration, args.budget, args.order)) for p in paths], workers,
                  _crashed_row, on_row)
     rows.sort(key=lambda r: r["model"])
     os.makedirs(OUT, exist_ok=True)
