@@ -900,12 +900,12 @@ class _Solver:
         x0, lo, hi = ncp.check_problem(z0, lo, hi, self.solver_opts)
         B1 = self.B1
         n = x0.shape[0]
-        buf = ncp.Buffers(n, self.solver_opts.max_iterations)
+        buf, J, H, opt = ncp.dense_buffers(n, self.solver_opts)
         c = np.ascontiguousarray
         _solve_single(B1.dim, float(B1.L), B1.par, c(B1._b0, float), c(B1._B, float), c(B1.R, float), par2, b02, B2,
-                      R2, N2, c2, x0, lo, hi, ncp.options_array(self.solver_opts), buf.x, buf.F, buf.xt, buf.Ft,
+                      R2, N2, c2, x0, lo, hi, opt, buf.x, buf.F, buf.xt, buf.Ft,
                       buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz, buf.history, buf.steps,
-                      buf.info, buf.fbuf, buf.work, np.empty((n, n)), np.empty((n, n)))
+                      buf.info, buf.fbuf, buf.work, J, H)
         sol = ncp.result_from_buffers(buf, self.solver_opts)
         self.iterations += sol.iterations
         self.last = sol

@@ -762,6 +762,12 @@ class Buffers:
                            self.fbuf, self.work)
 
 
+def dense_buffers(n: int, options: SolverOptions):
+    """What one compiled dense solve of n unknowns writes into: (Buffers, J and H (n, n)
+    workspaces, options_array(options))."""
+    return Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)), options_array(options)
+
+
 @kernel
 def _iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf,
                 work):

@@ -99,17 +99,22 @@ _STAGE2_BUFFERS = {}
 
 
 def _stage2_buffers(n, options):
-    """(ncp.Buffers, J, H, options array) of a stage-2 solve of n unknowns, kept per (n, options)
-    (a stage 2 is built afresh every step; making them cost ~20 us of a ~0.5 ms split step). The
-    solver writes every entry it reads (step problems reuse theirs the same way: _buffers), and
-    solve_stage2's result holds copies."""
-    entry = _STAGE2_BUFFERS.get((n, id(options)))
-    if entry is None or entry[4] is not options:
-        if len(_STAGE2_BUFFERS) > 16:
-            _STAGE2_BUFFERS.clear()
-        entry = _STAGE2_BUFFERS[(n, id(options))] = (ncp.Buffers(n, options.max_iterations), np.empty((n, n)),
-                                                     np.empty((n, n)), ncp.options_array(options), options)
-    return entry[:4]
+    """ncp.dense_buffers of a stage-2 solve of n unknowns, kept per (n, options) (a stage 2 is
+    built afresh every step; making them cost ~20 us of a ~0.5 ms split step). The solver writes
+    every entry it reads (step problems reuse theirs the same way: _buffers), and solve_stage2's
+    result holds copies."""
+    return _kept(_STAGE2_BUFFERS, (n, id(options)), options, 16, lambda: ncp.dense_buffers(n, options))[:4]
+
+
+def _kept(held, key, options, limit, make):
+    """held[key], made by make() (a tuple) with options appended when missing or made for other
+    options (an id reused); held is emptied first when it has more than limit entries."""
+    entry = held.get(key)
+    if entry is None or entry[-1] is not options:
+        if len(held) > limit:
+            held.clear()
+        entry = held[key] = make() + (options,)
+    return entry
 
 
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
@@ -136,18 +141,15 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
 def _buffers(problem: StepProblem, options: ncp.SolverOptions):
     """(ncp.Buffers, J, H, options array, options, their bundles.Solver) of one solve, kept with the
     problem per options."""
-    held = problem.__dict__.setdefault("_solver_buffers", {})
-    entry = held.get(id(options))
-    if entry is None or entry[4] is not options:
-        if len(held) > 4:
-            held.clear()
-        n = problem.layout.n
-        buf, J, H, opt = ncp.Buffers(n, options.max_iterations), np.empty((n, n)), np.empty((n, n)), \
-            ncp.options_array(options)
+    def make():
+        buf, J, H, opt = ncp.dense_buffers(problem.layout.n, options)
         bundle = bundles.solver(**{name: getattr(buf, name) for name in bundles.SOLVER_FIELDS if hasattr(buf, name)},
                                 J=J, H=H, opt=opt)
-        entry = held[id(options)] = (buf, J, H, opt, options, bundle)
-    return entry
+        return buf, J, H, opt, bundle
+
+    buf, J, H, opt, bundle, _ = _kept(problem.__dict__.setdefault("_solver_buffers", {}), id(options), options, 4,
+                                      make)
+    return buf, J, H, opt, options, bundle
 
 
 def solver_bundles(problem: StepProblem, options: ncp.SolverOptions):
