@@ -19,11 +19,6 @@ so, mostly, is a step whose last allowed solve a recovery still wanted to restar
                                       faces hovering within the tolerance have a whole  hovering_parallel_faces_are_released_
                                       face of closest points (a cylinder sliding on its and_certified
                                       cap); left out, then certified apart at the end
-    uncentred_reseed     failed,      a polytope edge on a face that cannot end the     tests/test_recovery_seeds.py
-                         near a       step parallel to it (hyq's four thigh hulls, feet
-                         solution     sticking): the touching point is a vertex or
-                                      another edge, which the rows cannot walk to; the
-                                      static solver's own closest points, once a step
     indeterminate_       failed,      redundant contacts (impulses not unique): four    tests/test_indeterminate_impulses.py,
     impulses             near a       feet sticking (torsions, warp mode), a table's    tests/test_ncp.py (solve_proximal)
                          solution     four legs landing flat: Newton and LM crawl; the
@@ -110,7 +105,6 @@ class Attempt:
     resumed: bool = False                          # resume_watched went on with it
     proximal: bool = False                         # indeterminate_impulses: the next solve is proximal
     proximal_starts: tuple | None = None           # indeterminate_impulses: (problem, its starts not yet tried)
-    uncentred: bool = False                        # uncentred_reseed tried
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -238,27 +232,6 @@ def indeterminate_impulses(stepper, att: Attempt, problem, result):
         return None
     att.proximal = True
     att.reseeded = starts.pop(0)
-    return RETRY
-
-
-def uncentred_reseed(stepper, att: Attempt, problem, result):
-    """A failed solve that stopped near a solution (NEAR_SOLUTION): restart once from the static
-    closest points at the poses the iterate implies, as the static solver gives them (a vertex, or
-    the edge or face that touches), not moved to the central touch point as reseed does.
-
-    A polytope edge landing on a face touches along a segment only if it ends the step exactly
-    parallel to the face; its KKT rows then hold the edge's two planes and the point anywhere on
-    it. When the rest of the step cannot make the edge parallel (example-robot-data's hyq falling
-    onto the hull edges of its four thighs, each leg's foot sphere sticking too: more sticking rows
-    than the robot has velocities), the touching point is an end vertex or another edge, 1 cm
-    away along the edge, and Newton, whose rows do not move the point along a parallel edge, stalls
-    at natural residuals of ~1e-6 in the (16) rows (N1 + N2 = 0) at every h down to h / 16, through
-    every other recovery. The static solver finds the touching feature: measured there, the solve
-    from its points converged in 9 iterations."""
-    if result.success or att.uncentred or not result.residual <= NEAR_SOLUTION:
-        return None
-    att.uncentred = True
-    att.reseeded = _reseed(problem, result.x, att.tol, centred=False)
     return RETRY
 
 
@@ -508,8 +481,8 @@ def friction_homotopy(stepper, att: Attempt, problem, result):
     return RETRY
 
 
-RECOVERIES = (friction_rows, passed_through, release_idle, uncentred_reseed, indeterminate_impulses, face_landing,
-              restart_sliding, cold_start, reseed, resume_watched, friction_homotopy)
+RECOVERIES = (friction_rows, passed_through, release_idle, indeterminate_impulses, face_landing, restart_sliding,
+              cold_start, reseed, resume_watched, friction_homotopy)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -555,11 +528,11 @@ def _put_multipliers(z, sl, l1, l2, s):
         z[sl.s] = s
 
 
-def _static_seed(problem, x, spec, tol, always=False, centred=True):
+def _static_seed(problem, x, spec, tol, always=False):
     """(a1, a2, l1, l2, s) of pair ``spec`` from the static closest points at the poses the
-    iterate x of ``problem`` implies (touching pieces: the central touch point if centred; a body
-    through a fixed half-space: its point below the plane); None if the static solve fails, unless
-    always (then _closest_seed's fallbacks)."""
+    iterate x of ``problem`` implies (touching pieces: the central touch point; a body through a
+    fixed half-space: its point below the plane); None if the static solve fails, unless always
+    (then _closest_seed's fallbacks)."""
     from .closest import closest_points
     P = problem.end_poses(x, spec)
     first, second = spec.objects
@@ -568,7 +541,7 @@ def _static_seed(problem, x, spec, tol, always=False, centred=True):
         return None
     a1, a2 = np.asarray(res.a1, float), np.asarray(res.a2, float)
     normal = np.asarray(res.normal, float)
-    if centred and (res.overlapping or res.distance <= tol):
+    if res.overlapping or res.distance <= tol:
         a1 = a2 = _central_touch_point(spec, P[0], P[1], a1, normal, tol)
     deepest = _below_plane_seed(spec, P) if res.overlapping else None
     if deepest is not None:
@@ -837,17 +810,17 @@ def _below_plane_seed(spec, P):
     return None
 
 
-def _reseed(problem, x, tol, centred=True):
+def _reseed(problem, x, tol):
     """A warm start for a failed solve: keep the velocities and impulses of the failed iterate and
     replace every pair's closest points and multipliers by the static solution (closest.py) at
-    the poses those velocities imply (centred: touching pieces at _central_touch_point).
+    the poses those velocities imply.
 
     Newton on the KKT rows of a polytope can stall on a vertex that is no longer the deepest one
     (a box slapping flat turns its contact point over to the far edge within one step); the
     static problem is convex and its solver finds the right vertex, face or deepest point."""
     z = x.copy()
     for k, spec in enumerate(problem.specs):
-        seed = _static_seed(problem, x, spec, tol, centred=centred)
+        seed = _static_seed(problem, x, spec, tol)
         if seed is None:
             continue
         a1, a2, l1, l2, s = seed

@@ -11,9 +11,6 @@ slides starts its friction re-solve sliding (recovery._clearly_sliding): that la
 2 substeps with or without this recovery (measured). The guards below land the table as every
 new contact used to land, from a sticking start (recovery.SLIDE_RATIO = inf), the start a contact
 that may stick still gets; their landing stalls next to a solution and needs this recovery.
-recovery.uncentred_reseed, which comes before it, lands that table too (a restart from the static
-closest points at the stalled iterate's poses): the guards of the proximal re-solve leave it out,
-and the last test guards it.
 """
 import numpy as np
 import pytest
@@ -70,10 +67,6 @@ def sticking_start(monkeypatch):
     monkeypatch.setattr(recovery, "SLIDE_RATIO", np.inf)
 
 
-def _without(monkeypatch, *left_out):
-    monkeypatch.setattr(recovery, "RECOVERIES", tuple(r for r in recovery.RECOVERIES if r not in left_out))
-
-
 @pytest.mark.parametrize("slide_ratio", [recovery.SLIDE_RATIO, np.inf])
 def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight(monkeypatch, slide_ratio):
     """From the sticking start (SLIDE_RATIO = inf), with the proximal re-solve the landing step
@@ -82,7 +75,6 @@ def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight(mon
     legs' normal impulses sum to m g h in every resting step (however they share it). The same
     holds with the default sliding start."""
     monkeypatch.setattr(recovery, "SLIDE_RATIO", slide_ratio)
-    _without(monkeypatch, recovery.uncentred_reseed)
     reports, table = _land_and_rest(60)
     assert all(r.success for r in reports)
     assert reports[LANDING].substeps <= 2
@@ -95,11 +87,12 @@ def test_four_legged_table_lands_with_fewer_halvings_and_rests_on_its_weight(mon
 
 
 def test_without_the_proximal_re_solve_the_landing_is_halved_twice(monkeypatch, sticking_start):
-    """The same scene with indeterminate_impulses (and uncentred_reseed) left out of the
-    recoveries, and without the solver's min-map endgame (step_solver.ENDGAME_RESIDUAL), which
-    lands it with 2 substeps on its own (next test): the landing step needs 4 substeps (the guard
-    that the test above exercises this recovery)."""
-    _without(monkeypatch, recovery.indeterminate_impulses, recovery.uncentred_reseed)
+    """The same scene with indeterminate_impulses left out of the recoveries, and without the
+    solver's min-map endgame (step_solver.ENDGAME_RESIDUAL), which lands it with 2 substeps on its
+    own (next test): the landing step needs 4 substeps (the guard that the test above exercises
+    this recovery)."""
+    monkeypatch.setattr(recovery, "RECOVERIES",
+                        tuple(r for r in recovery.RECOVERIES if r is not recovery.indeterminate_impulses))
     monkeypatch.setattr(step_solver, "ENDGAME_RESIDUAL", -1.0)
     reports, _ = _land_and_rest(LANDING + 1)
     assert reports[LANDING].substeps == 4
@@ -110,7 +103,8 @@ def test_the_min_map_endgame_alone_lands_the_table_with_one_halving(monkeypatch,
     <= step_solver.ENDGAME_RESIDUAL, J singular along the warp mode and the shared torsions) are
     finished by ncp.newton_min_map's least-norm steps: the landing needs 2 substeps, not 4, and
     the table rests on its weight as above (measured: 7 of 10 endgames converged)."""
-    _without(monkeypatch, recovery.indeterminate_impulses, recovery.uncentred_reseed)
+    monkeypatch.setattr(recovery, "RECOVERIES",
+                        tuple(r for r in recovery.RECOVERIES if r is not recovery.indeterminate_impulses))
     calls = []
     endgame = ncp.newton_min_map
 
@@ -124,28 +118,5 @@ def test_the_min_map_endgame_alone_lands_the_table_with_one_halving(monkeypatch,
     assert all(r.success for r in reports)
     assert reports[LANDING].substeps == 2 and max(r.substeps for r in reports) <= 2
     assert any(calls)
-    np.testing.assert_allclose(table.getVelocities(), 0.0, atol=REST_TOL)
-    assert sum(c.p_n for c in reports[-1].contacts) == pytest.approx(MASS * 9.81 * H, rel=WEIGHT_RTOL)
-
-
-def test_the_uncentred_reseed_alone_lands_the_table_with_one_halving(monkeypatch, sticking_start):
-    """Without indeterminate_impulses and the endgame (where the table's landing needs 4 substeps,
-    above), recovery.uncentred_reseed restarts the stalled solve from the static closest points
-    of its iterate's poses: the landing needs 2 substeps, and the table rests on its weight."""
-    _without(monkeypatch, recovery.indeterminate_impulses)
-    monkeypatch.setattr(step_solver, "ENDGAME_RESIDUAL", -1.0)
-    calls = []
-    reseed = recovery.uncentred_reseed
-
-    def counted(*args):
-        outcome = reseed(*args)
-        calls.append(outcome)
-        return outcome
-
-    monkeypatch.setattr(recovery, "RECOVERIES", tuple(counted if r is reseed else r for r in recovery.RECOVERIES))
-    reports, table = _land_and_rest(60)
-    assert all(r.success for r in reports)
-    assert reports[LANDING].substeps == 2 and max(r.substeps for r in reports) <= 2
-    assert recovery.RETRY in calls
     np.testing.assert_allclose(table.getVelocities(), 0.0, atol=REST_TOL)
     assert sum(c.p_n for c in reports[-1].contacts) == pytest.approx(MASS * 9.81 * H, rel=WEIGHT_RTOL)
