@@ -49,6 +49,7 @@ import numpy as np
 
 from . import hulls
 from . import shapes as shp
+from . import step_kernels
 from .params import Compliance, Friction
 
 SHAPE_NODE_PREFIX = "implicit_contact:"
@@ -639,37 +640,13 @@ def coriolis_jacobian(rec: SkeletonRecord, v) -> np.ndarray:
 
 
 def free_coriolis_jacobian(M, w) -> np.ndarray:
-    """dc/dv (6, 6) of DART's Coriolis forces c for one rigid body on a FreeJoint, in closed form
+    """dc/dv (6, 6) of DART's Coriolis forces for one rigid body on a FreeJoint, in closed form
     from its mass matrix M at q and its angular velocity w (world frame), where coriolis_jacobian
-    takes 12 calls into DART. The velocities are [w; v] of the body origin, both in the world
-    frame (check_free_joint_convention); with m the mass, r the centre of mass from the origin and
-    I the rotational inertia about the centre of mass (both in the world frame), the Newton-Euler
-    equations at the origin give
-
-        M = [[I + m [r]^T [r],  m [r]], [m [r]^T,  m 1]],
-        c = [w x I w + m r x (w x (w x r));  m w x (w x r)],
-
-    so m, r and I are read off M, c does not depend on v, and with D = d(w x (w x r))/dw =
-    -[w x r] - [w][r]:
-
-        dc/dw = [[ [w] I - [I w] + m [r] D ];  [ m D ]],   dc/dv = 0.
-
-    Agrees with coriolis_jacobian to round-off (tests/test_rattle.py)."""
-    m = M[3, 3]
-    S = M[:3, 3:] / m                     # [r]
-    r = 0.5 * np.array([S[2, 1] - S[1, 2], S[0, 2] - S[2, 0], S[1, 0] - S[0, 1]])
-    Sr = _skew(r)
-    I = M[:3, :3] - m * (Sr.T @ Sr)
-    Sw = _skew(w)
-    D = -_skew(np.cross(w, r)) - Sw @ Sr
-    out = np.zeros((6, 6))
-    out[:3, :3] = Sw @ I - _skew(I @ w) + m * (Sr @ D)
-    out[3:, :3] = m * D
+    takes 12 calls into DART (the derivation: step_kernels.free_coriolis_jacobian, which computes
+    it)."""
+    out = np.empty((6, 6))
+    step_kernels.free_coriolis_jacobian(np.ascontiguousarray(M, dtype=float), np.ascontiguousarray(w, dtype=float), out)
     return out
-
-
-def _skew(a) -> np.ndarray:
-    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
 
 
 def read_body(body: BodyRecord, T_out, J_out=None) -> None:

@@ -541,7 +541,7 @@ class StepProblem:
         return self._reports_np
 
     def _evaluated_at(self, z):
-        if self._rep_at is None or not np.array_equal(z, self._rep_at):
+        if self._rep_at is None or (z is not self._rep_at and not np.array_equal(z, self._rep_at)):
             self._sync()
             self._evaluate(z, False)
 

@@ -127,6 +127,7 @@ import math
 import numpy as np
 
 from . import ncp
+from . import step_kernels
 from . import step_solver
 from .memory import _tangents
 from .rows import velocity as rv
@@ -228,12 +229,13 @@ class Stage2:
         self.M = np.zeros((at, at))
         self.u = np.zeros(at)
         self.hf = np.zeros(at)
-        self._blocks = [(c, len(M)) for c, (M, _, _) in zip(cols, skeletons)]
+        self._blocks = np.array([(c, len(M)) for c, (M, _, _) in zip(cols, skeletons)], np.int64).reshape(-1, 2)
         for c, (M, u, hf) in zip(cols, skeletons):
             k = len(M)
             self.M[c:c + k, c:c + k] = M
             self.u[c:c + k], self.hf[c:c + k] = u, hf
-        self.scale = 1.0 / np.maximum(np.diag(self.M), 1e-300)
+        diagonal = self.M.diagonal()
+        self.scale = 1.0 / np.where(diagonal > 1e-300, diagonal, 1e-300)
         everything = self.pairs
         npairs, nb = len(everything), len(bodies)
         kmax = max([1] + [J.shape[1] for _, J, _ in bodies])
@@ -248,16 +250,19 @@ class Stage2:
         frame = np.array([(cp.n, cp.t, cp.o) for cp in everything], float).reshape(npairs, 3, 3)
         G = np.zeros((npairs, 4, at))
         rv.velocity_rows(ends, a, frame, bcol, bk, bJ, bp, G)
-        for cp, g in zip(everything, G):
-            if cp.known:      # (R5)'s - W^T (-R1) of a patch's stage-1 point: into h/2 f
-                self.hf -= cp.s_p * (g[0] * cp.R1[0] + g[1] * cp.R1[1] + g[2] * cp.R1[2] + cp.e_r * g[3] * cp.R1[3])
         keep = [i for i, cp in enumerate(everything) if not cp.known]
-        self.pairs = [everything[i] for i in keep]
-        self.G = np.ascontiguousarray(G[keep]).reshape(len(keep), 4, self.nv)
+        if len(keep) == npairs:
+            self.G = G
+        else:
+            for cp, g in zip(everything, G):
+                if cp.known:      # (R5)'s - W^T (-R1) of a patch's stage-1 point: into h/2 f
+                    self.hf -= cp.s_p * (g[0] * cp.R1[0] + g[1] * cp.R1[1] + g[2] * cp.R1[2] + cp.e_r * g[3] * cp.R1[3])
+            self.pairs = [everything[i] for i in keep]
+            self.G = np.ascontiguousarray(G[keep]).reshape(len(keep), 4, self.nv)
         npairs = len(self.pairs)
         self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
-        lo, hi = [[-np.inf] * at], [[np.inf] * at]
+        lo, hi = [-np.inf] * at, [np.inf] * at
         parent, left = -1, 0
         for k, cp in enumerate(self.pairs):
             nt = (cp.dim - 1) if cp.friction else 0
@@ -270,19 +275,19 @@ class Stage2:
             if cp.vertices:            # (a layered patch's vertices refer to its point's column)
                 parent, left = (at if cp.layered_patch else -1), cp.vertices
             free = cp.core_open or (cp.vertices and not cp.layered_patch)
-            lo.append([-np.inf if free else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns)
-            hi.append([np.inf] * (1 + nt + nr + ns))
+            lo += [-np.inf if free else 0.0] + [-np.inf] * (nt + nr) + [0.0] * ns
+            hi += [np.inf] * (1 + nt + nr + ns)
             at += 1 + nt + nr + ns
         nj = len(joints)
         self.jg = np.array([j[0] for j in joints], float).reshape(nj, self.nv)
         self.ju = np.array([j[1] for j in joints], float)
         self.jk = np.array([j[4] for j in joints], float)
         self.jcol = np.arange(at, at + nj, dtype=np.int64)
-        lo.append([float(j[2]) for j in joints])
-        hi.append([float(j[3]) for j in joints])
+        lo += [float(j[2]) for j in joints]
+        hi += [float(j[3]) for j in joints]
         at += nj
         self.n = at
-        self.lower, self.upper = (np.array([b for block in bounds for b in block], float) for bounds in (lo, hi))
+        self.lower, self.upper = np.array(lo, float), np.array(hi, float)
         self._F, self._J = np.zeros(at), np.zeros((at, at))
 
     def fun(self, x):
@@ -299,8 +304,7 @@ class Stage2:
         """The free half kick for v+, twice stage 1's impulse (the trapezoidal guess R2 = R1) and
         stage 1's sigma."""
         x = np.zeros(self.n)
-        for c, k in self._blocks:      # M is block diagonal over the skeletons
-            x[c:c + k] = self.u[c:c + k] + np.linalg.solve(self.M[c:c + k, c:c + k], self.hf[c:c + k])
+        step_kernels.block_kicks(self.M, self.u, self.hf, self._blocks, x)   # (M: block diagonal)
         for cp, (c, nt, nr, ns, *_) in zip(self.pairs, self.pi):
             m = 1 + nt + nr
             x[c:c + 1 + nt] = 2.0 * cp.R1[:1 + nt]
@@ -377,7 +381,7 @@ class Stage2:
             if cp.vertices:
                 P[0] = sum(float(x[self.pi[i, 0]]) for i in range(k + 1, k + 1 + cp.vertices))
             else:
-                P[0] = x[c] + cp.load - cp.damp * float(self.G[k, 0] @ x[:self.nv])
+                P[0] = x[c] + cp.load - (cp.damp * float(self.G[k, 0] @ x[:self.nv]) if cp.damp else 0.0)
             P[1:1 + nt] = x[c + 1:c + 1 + nt]
             if nr:
                 P[3] = x[c + 1 + nt]

@@ -62,6 +62,19 @@ def small_solve(A, b, out):
 
 
 @kernel
+def block_kicks(M, u, b, blocks, out):
+    """out = u + M^-1 b for a block-diagonal M (n, n) whose blocks are (first column, size) rows of
+    blocks; a block that is exactly singular gets NaN (a solve from there stops as NOT_FINITE)."""
+    for r in range(blocks.shape[0]):
+        c, k = blocks[r, 0], blocks[r, 1]
+        dv = np.empty(k)
+        if not small_solve(M[c:c + k, c:c + k], b[c:c + k], dv):
+            dv[:] = np.nan
+        for i in range(k):
+            out[c + i] = u[c + i] + dv[i]
+
+
+@kernel
 def free_flight(sk_nv, sk_voff, sk_moff, V, MB, FB, h, VF):
     """VF = V + h M^-1 FB per skeleton (the semi-implicit Euler step with no contact)."""
     for s in range(sk_nv.shape[0]):
@@ -356,6 +369,68 @@ def split_end_forces(W, h, U, stiff):
             d = W.SPD[off + i]
             if 0.5 * h * d > stiff * W.MB[moff + i * k + i]:
                 W.MB[moff + i * k + i] += 0.5 * h * d
+
+
+@kernel
+def free_coriolis_jacobian(M, w, out):
+    """dc/dv (6, 6) into out: DART's Coriolis forces c of one rigid body on a FreeJoint, in
+    closed form from its mass matrix M (6, 6) at q and its angular velocity w (world frame),
+    where dart_adapter.coriolis_jacobian takes 12 calls into DART. The velocities are [w; v] of
+    the body origin, both in the world frame; with m the mass, r the centre of mass from the
+    origin and I the rotational inertia about the centre of mass (both in the world frame), the
+    Newton-Euler equations at the origin give
+
+        M = [[I + m [r]^T [r],  m [r]], [m [r]^T,  m 1]],
+        c = [w x I w + m r x (w x (w x r));  m w x (w x r)],
+
+    so m, r and I are read off M, c does not depend on v, and with D = d(w x (w x r))/dw =
+    -[w x r] - [w][r]:
+
+        dc/dw = [[ [w] I - [I w] + m [r] D ];  [ m D ]],   dc/dv = 0.
+
+    Agrees with coriolis_jacobian to round-off (tests/test_rattle.py)."""
+    m = M[3, 3]
+    r0 = 0.5 * (M[2, 4] - M[1, 5]) / m        # (m [r] = M[:3, 3:], skew)
+    r1 = 0.5 * (M[0, 5] - M[2, 3]) / m
+    r2 = 0.5 * (M[1, 3] - M[0, 4]) / m
+    Sr = np.array(((0.0, -r2, r1), (r2, 0.0, -r0), (-r1, r0, 0.0)))
+    Sw = np.array(((0.0, -w[2], w[1]), (w[2], 0.0, -w[0]), (-w[1], w[0], 0.0)))
+    I = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            I[i, j] = M[i, j] - m * (Sr[0, i] * Sr[0, j] + Sr[1, i] * Sr[1, j] + Sr[2, i] * Sr[2, j])
+    c0, c1, c2 = w[1] * r2 - w[2] * r1, w[2] * r0 - w[0] * r2, w[0] * r1 - w[1] * r0      # w x r
+    D = np.empty((3, 3))
+    Iw = np.empty(3)
+    for i in range(3):
+        Iw[i] = I[i, 0] * w[0] + I[i, 1] * w[1] + I[i, 2] * w[2]
+        for j in range(3):
+            D[i, j] = -(Sw[i, 0] * Sr[0, j] + Sw[i, 1] * Sr[1, j] + Sw[i, 2] * Sr[2, j])
+    D[0, 1] += c2
+    D[0, 2] -= c1
+    D[1, 0] -= c2
+    D[1, 2] += c0
+    D[2, 0] += c1
+    D[2, 1] -= c0
+    SIw = np.array(((0.0, -Iw[2], Iw[1]), (Iw[2], 0.0, -Iw[0]), (-Iw[1], Iw[0], 0.0)))
+    out[:, :] = 0.0
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = (Sw[i, 0] * I[0, j] + Sw[i, 1] * I[1, j] + Sw[i, 2] * I[2, j]) - SIw[i, j] \
+                + m * (Sr[i, 0] * D[0, j] + Sr[i, 1] * D[1, j] + Sr[i, 2] * D[2, j])
+            out[3 + i, j] = m * D[i, j]
+
+
+@kernel
+def stage1_free_tables(MB, V, FB, MB1, FB1, o, mo, h, C):
+    """Order 2's stage-1 tables of a free body without joint springs or dampers (rattle.py,
+    eq R1): MB1 = M + h/2 dc/dv at (q, v) (C: its (6, 6) workspace), FB1 = f / 2."""
+    M = MB[mo:mo + 36].reshape(6, 6)
+    free_coriolis_jacobian(M, V[o:o + 3], C)
+    for i in range(6):
+        FB1[o + i] = 0.5 * FB[o + i]
+        for j in range(6):
+            MB1[mo + 6 * i + j] = M[i, j] + 0.5 * h * C[i, j]
 
 
 @kernel

@@ -267,6 +267,7 @@ class ImplicitContactStepper:
         self._problems = {}        # persistent step problems, by layout signature and bodies
         self._ctx = None           # what the last step leaves for _repeat_step
         self._stage2_solver = None  # (options.solver, order 2's stage-2 options: _stage2_step)
+        self._coriolis = np.empty((6, 6))   # (_stage1_tables' workspace)
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
         self._variants = {}        # solver options with another iteration limit or watch (_variant)
@@ -835,9 +836,9 @@ class ImplicitContactStepper:
             if not k:
                 continue
             if rec.kind == adapter.FREE and rec.spring_damper is None:     # (MB then holds DART's M)
-                C = adapter.free_coriolis_jacobian(w.MB[mo:mo + k * k].reshape(k, k), w.V[o:o + 3])
-            else:
-                C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
+                sk.stage1_free_tables(w.MB, w.V, w.FB, w.MB1, w.FB1, o, mo, h, self._coriolis)
+                continue
+            C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
             M1 = w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C
             w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
             if rec.spring_damper is not None:
