@@ -69,6 +69,30 @@ def test_free_body_coriolis_jacobian_matches_darts_central_differences():
         assert np.max(np.abs(by_differences[:, 3:])) <= RTOL_CORIOLIS * np.max(np.abs(by_differences))
 
 
+RTOL_KICK = 1e-12           # round-off of a 6 x 6 LU solve against numpy's
+
+
+def test_block_kicks_solve_each_skeleton_block_and_mark_a_singular_one():
+    """step_kernels.block_kicks (stage 2's free half kick, rattle.Stage2.start): u + M^-1 b per
+    diagonal block, against numpy's dense solve; an exactly singular block gives NaN, which the
+    solver reports as NOT_FINITE, instead of an exception mid-step."""
+    from implicit_contact import step_kernels
+    rng = np.random.default_rng(11)
+    A, B = rng.normal(size=(6, 6)), rng.normal(size=(3, 3))
+    M = np.zeros((9, 9))
+    M[:6, :6], M[6:, 6:] = A @ A.T + np.eye(6), B @ B.T + np.eye(3)
+    u, b = rng.normal(size=9), rng.normal(size=9)
+    blocks = np.array([[0, 6], [6, 3]], np.int64)
+    out = np.zeros(12)
+    step_kernels.block_kicks(M, u, b, blocks, out)
+    expected = u + np.linalg.solve(M, b)
+    assert np.max(np.abs(out[:9] - expected)) <= RTOL_KICK * np.max(np.abs(expected))
+    assert np.all(out[9:] == 0.0)              # (the impulse columns are not touched)
+    M[6:, 6:] = 0.0
+    step_kernels.block_kicks(M, u, b, blocks, out)
+    assert np.all(np.isnan(out[6:9])) and np.max(np.abs(out[:6] - expected[:6])) <= RTOL_KICK * np.max(np.abs(expected))
+
+
 def _observed_order(errors):
     return float(np.log2(errors[0] / errors[1]))
 
