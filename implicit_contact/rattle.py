@@ -132,6 +132,7 @@ from . import step_solver
 from .memory import _tangents
 from .rows import velocity as rv
 
+_NO_FLOATS = np.zeros(0)   # (Stage2 without joint rows; never written)
 STIFF_DAMPER = 1.0   # a = h D_i / (2 M_ii) above which a joint damper acts at v+ in stage 2 (R10)
 
 
@@ -221,26 +222,24 @@ class Stage2:
         """joints: per joint row (g over all of x's velocity columns (nv,), unit, lower, upper,
         stage 1's generalized impulse along g) (rows/velocity.py)."""
         self.pairs = list(pairs)
-        cols, at = [], 0
+        blocks, at = [], 0
         for M, _, _ in skeletons:
-            cols.append(at)
+            blocks.append((at, len(M)))
             at += len(M)
         self.nv = at
         self.M = np.zeros((at, at))
         self.u = np.zeros(at)
         self.hf = np.zeros(at)
-        self._blocks = np.array([(c, len(M)) for c, (M, _, _) in zip(cols, skeletons)], np.int64).reshape(-1, 2)
-        for c, (M, u, hf) in zip(cols, skeletons):
-            k = len(M)
+        self._blocks = np.array(blocks, np.int64).reshape(-1, 2)
+        for (c, k), (M, u, hf) in zip(blocks, skeletons):
             self.M[c:c + k, c:c + k] = M
             self.u[c:c + k], self.hf[c:c + k] = u, hf
-        diagonal = self.M.diagonal()
-        self.scale = 1.0 / np.where(diagonal > 1e-300, diagonal, 1e-300)
+        self.scale = np.array([1e300 if m <= 1e-300 else 1.0 / m for m in self.M.diagonal().tolist()])   # (NaN stays)
         everything = self.pairs
         npairs, nb = len(everything), len(bodies)
-        kmax = max([1] + [J.shape[1] for _, J, _ in bodies])
-        bcol = np.array([b[0] for b in bodies], np.int64)
         bk = np.array([b[1].shape[1] for b in bodies], np.int64)
+        kmax = max(1, int(bk.max())) if nb else 1
+        bcol = np.array([b[0] for b in bodies], np.int64)
         bJ = np.zeros((nb, 6, kmax))
         bp = np.zeros((nb, 3))
         for i, (_, J, p) in enumerate(bodies):
@@ -279,12 +278,15 @@ class Stage2:
             hi += [np.inf] * (1 + nt + nr + ns)
             at += 1 + nt + nr + ns
         nj = len(joints)
-        self.jg = np.array([j[0] for j in joints], float).reshape(nj, self.nv)
-        self.ju = np.array([j[1] for j in joints], float)
-        self.jk = np.array([j[4] for j in joints], float)
+        if nj:
+            self.jg = np.array([j[0] for j in joints], float).reshape(nj, self.nv)
+            self.ju = np.array([j[1] for j in joints], float)
+            self.jk = np.array([j[4] for j in joints], float)
+            lo += [float(j[2]) for j in joints]
+            hi += [float(j[3]) for j in joints]
+        else:
+            self.jg, self.ju, self.jk = np.zeros((0, self.nv)), _NO_FLOATS, _NO_FLOATS
         self.jcol = np.arange(at, at + nj, dtype=np.int64)
-        lo += [float(j[2]) for j in joints]
-        hi += [float(j[3]) for j in joints]
         at += nj
         self.n = at
         self.lower, self.upper = np.array(lo, float), np.array(hi, float)
