@@ -34,7 +34,7 @@ import numpy as np
 # The modules that define kernels (paths relative to the package). Keep this list complete:
 # a kernel module missing here could be served from a stale cache after an edit.
 KERNEL_MODULES = ("_jit.py", "shape_kernels.py", "rows/__init__.py", "rows/bodies.py", "rows/contact.py",
-                  "rows/dynamics.py", "rows/support.py", "rows/velocity.py", "rows/assemble.py", "rows/tables.py", "rows/checks.py", "ncp.py", "sparse_lu.py", "closest.py",
+                  "rows/dynamics.py", "rows/support.py", "rows/velocity.py", "rows/assemble.py", "rows/tables.py", "rows/checks.py", "ncp.py", "sparse_lu.py", "block_elimination.py", "closest.py",
                   "step_solver.py", "step_kernels.py", "memory.py", "repeat_kernels.py", "patch.py", "landing.py",
                   "bundles.py")   # the bundles' types are in the signatures of the kernels that take them
 

@@ -159,6 +159,23 @@ def _position_rows(layout: Layout):
     return rows
 
 
+def closest_point_blocks(layout: Layout):
+    """Per pair its closest-point unknowns a1, a2, l1, l2 and s ([GI] eqs 15-18; the cone form's
+    28n-32n) as groups (bptr, bidx) for ncp.solve_mcp's blocks: a pair's closest-point rows read
+    its own group and its bodies' velocities only, so in the Newton matrix the groups are coupled
+    only through the other unknowns (block_elimination.py). Kept with the layout."""
+    blocks = layout.__dict__.get("_closest_point_blocks")
+    if blocks is None:
+        groups = [np.concatenate([sl.a1, sl.a2, sl.l1, sl.l2, [sl.s] if sl.s >= 0 else []]).astype(np.int64)
+                  for sl in layout.pairs]
+        groups = [g for g in groups if len(g)]
+        bptr = np.zeros(len(groups) + 1, np.int64)
+        bptr[1:] = np.cumsum([len(g) for g in groups])
+        bidx = np.concatenate(groups) if groups else np.zeros(0, np.int64)
+        blocks = layout.__dict__["_closest_point_blocks"] = (bptr, bidx)
+    return blocks
+
+
 _REDUCED_CACHE = weakref.WeakKeyDictionary()
 
 

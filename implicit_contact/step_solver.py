@@ -28,6 +28,7 @@ from . import bundles
 from . import ncp
 from ._jit import FALSE, TRUE, kernel
 from .formulation import StepProblem
+from .layout import closest_point_blocks
 from .rows.assemble import assemble
 from .rows import velocity as rv
 
@@ -120,7 +121,8 @@ def _kept(held, key, options, limit, make):
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
     if problem._sparse:
         problem._sync()
-        return ncp.solve_mcp(problem.fun_synced, problem.jac_synced, z0, problem.lower, problem.upper, options)
+        return ncp.solve_mcp(problem.fun_synced, problem.jac_synced, z0, problem.lower, problem.upper, options,
+                             blocks=closest_point_blocks(problem.layout))
     x0 = np.ascontiguousarray(z0, dtype=float)
     if x0.shape != problem.lower.shape or not math.isfinite(x0 @ x0) and not np.isfinite(x0).all():
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
