@@ -26,6 +26,8 @@ whole matrix's LU).
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from . import sparse_lu
 from ._jit import kernel
@@ -381,12 +383,15 @@ class Structure:
         self._order = None
 
     def column_order(self):
-        """COLAMD's column order of S's pattern (stored entries), made once: it depends on the
-        problem's structure alone. Measured on 27 superquadrics in a box (S ~300 unknowns): factors
-        5 % larger at the median (23 % at most) than with the order of the first iterate's
-        nonzeros, the LU 8 % slower, and 1.4 ms of COLAMD saved per solve."""
+        """The reverse Cuthill-McKee order of S's pattern (stored entries) made symmetric, made
+        once: it depends on the problem's structure alone. S couples the bodies that touch, a
+        graph with few edges a node, and on it RCM orders as well as COLAMD for less: measured on
+        the S of 27 superquadrics in a box (~300 unknowns, median of 12), 4404 entries in the
+        factors and 0.13 ms an LU against 4554 and 0.14 ms with COLAMD (SuperLU's, of the same
+        pattern), 0.07 ms to order against 0.76 ms."""
         if self._order is None:
-            self._order = sparse_lu.column_order(self.Sp, self.Sj)
+            A = sp.csr_matrix((np.ones(len(self.Sj)), self.Sj, self.Sp), shape=(self.nr, self.nr))
+            self._order = np.asarray(reverse_cuthill_mckee((A + A.T).tocsr(), symmetric_mode=True), np.int64)
         return self._order
 
     def matches(self, indptr, indices, bptr, bidx) -> bool:

@@ -1176,7 +1176,7 @@ class _SparsePattern:
         if self.elimination is not None:
             # the local blocks eliminated first; the whole matrix's LU below if that fails
             d = self.elimination.solve(data, -Phi)
-            if d is not None and sparse_lu.residual_ok(self.ip64, self.ix64, data, d, -Phi, SPARSE_SOLVE_TOL):
+            if d is not None and sparse_lu.residual_ok(self.ip64, self.ix64, data, d, -Phi, ELIMINATED_SOLVE_TOL):
                 return d
         # H's CSR arrays read as CSC are H^T: factorised as they are, H d = -Phi is solved with the
         # transposed factors (sparse_lu skips the stored zeros)
@@ -1252,6 +1252,11 @@ def _sparse_solve(H, rhs):
 # with ||H d - rhs|| = 1e17 ||rhs||; 112 of 12320 solves of that run were such. Solves of the
 # same run that SuperLU completes reach 1e-5 at worst.
 SPARSE_SOLVE_TOL = 1e-4
+# A direction of the eliminated solve (block_elimination.py) is taken only if it solves to 1e-10,
+# else the whole matrix's LU gives it: a near-singular local block (a pair's closest-point rows
+# where its points are barely determined) leaves S with cancellation, and such a direction would
+# pass SPARSE_SOLVE_TOL while being less exact than the whole LU's.
+ELIMINATED_SOLVE_TOL = 1e-10
 
 
 def _solves(H, d, rhs) -> bool:
