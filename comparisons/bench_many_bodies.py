@@ -21,11 +21,14 @@ History (shared 2-core VM, median CPU ms per landed step, steps 10-15):
     far pairs left out of the MCP:             65 /  190 /   915, fit t = 0.0089 s n^1.17
     compiled rows and dense solver (issue 12): 16-28 / 42-44 / 208-229, fit t = 0.004-0.008 s n^0.8-1.0;
         DART's native step of the box layout in the same run: 0.38 / 0.63 / 1.7 ms.
-What remains at 100 bodies (cProfile of steps 11-15): ~13 Newton iterations per solve, ~2 solves
-per landing step (friction rows switched on), each iteration one sparse LU (SuperLU, ~2 ms for
-~2200 unknowns) and one compiled assembly of F and J (~0.75 ms for ~175 pairs); the rest is the
-sparse driver's Python (scipy matrix objects per iteration) and, while pairs keep changing, the
-rebuilt layouts and static closest points of new pairs (Python, closest.py).
+    compiled sparse LU, closest-point blocks eliminated first (block_elimination.py), 2026-12-06:
+        17-19 / 29-33 / 136-141 (the commit before, alternated: 17-19 / 31-33 / 138-145).
+What remains at 100 bodies (steps 11-15, timed per call): ~2-3 solves per landing step (friction
+rows switched on) of ~10 Newton iterations, each iteration two compiled assemblies of F and J (~0.7
+ms each for ~175 pairs: the line search's trial and the new iterate) and one Newton step (~1.1 ms:
+the closest-point blocks eliminated, ~2200 -> ~880 unknowns, 0.36 ms, and their LU, 0.24 ms), ~85
+ms of a 138 ms step; the rest is Python around the solves: the layouts rebuilt while pairs keep
+changing, the static closest points of new pairs (closest.py), the checks.
 
 Run: python -m comparisons.bench_many_bodies [--bodies 10 30 100] [--steps 16] [--jacobian auto]
 """

@@ -1342,12 +1342,14 @@ def rows(records: dict) -> list[dict]:
 
 # why the scaling goal is out of reach (measured with comparisons/bench_many_bodies.py and cProfile)
 SCALING_LIMIT_WHY = ("why: the pair rows are compiled (~4 us per pair for F and J), but a landing step of 100 "
-                     "bodies solves ~2200 unknowns by Newton with ~13 iterations per solve and ~2 solves (friction "
-                     "rows switched on), each iteration one sparse LU (SuperLU, ~2 ms) and one assembly of F and J "
-                     "(~0.75 ms for ~175 pairs), driven from Python through scipy's sparse matrices; while pairs "
-                     "keep changing, layouts and the static closest points of new pairs are rebuilt in Python. "
-                     "50 ms needs fewer iterations and a structured factorisation (the closest-point block of "
-                     "each pair eliminated, M block diagonal), not faster rows")
+                     "bodies (~2200 unknowns) takes ~2-3 solves (friction rows switched on) of ~10 Newton "
+                     "iterations, each iteration two compiled assemblies of F and J (~0.7 ms each for ~175 pairs, "
+                     "the line search's trial and the new iterate) and one Newton step with each pair's "
+                     "closest-point block eliminated first (block_elimination.py: ~1.1 ms, ~880 unknowns left, "
+                     "0.36 ms to form them and 0.24 ms their LU), ~85 ms a step; the other ~50 ms are Python "
+                     "around the solves: layouts rebuilt while pairs keep changing, the static closest points "
+                     "of new pairs, the checks. 50 ms needs fewer iterations and that Python compiled, not "
+                     "faster rows")
 
 
 def goal_row(fit: ScalingFit | None) -> dict:
