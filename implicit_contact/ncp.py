@@ -1142,7 +1142,8 @@ class _SparsePattern:
     the same Newton iterations: 42 -> 30 ms (30 bodies), 175 -> 139 ms (100 bodies). A pattern
     without every diagonal entry takes scipy's general route.
 
-    With solve_mcp's blocks (a step problem's closest-point blocks, layout.closest_point_blocks)
+    With solve_mcp's blocks (a step problem's closest-point blocks, layout.closest_point_blocks,
+    from step_solver.ELIMINATE_MIN_UNKNOWNS unknowns)
     each Newton step first eliminates them (block_elimination.py) and factorises the reduced
     matrix; the whole matrix's LU above is the fallback where a local block or the reduced matrix
     is singular or the direction does not solve to ELIMINATED_SOLVE_TOL. Measured on 27

@@ -118,11 +118,23 @@ def _kept(held, key, options, limit, make):
     return entry
 
 
+# A sparse step's Newton steps eliminate the pairs' closest-point blocks first (block_elimination.py)
+# from this many unknowns. Below it the step's LU is not a material part of the step (10 bodies in a
+# box, ~270 unknowns: a Newton step 0.12 ms eliminated against 0.18 ms whole, of a ~17 ms step);
+# from ~450 it is (16 bodies: 0.22 against 0.37 ms; 27 superquadrics, ~720: 0.36 against 0.60 ms,
+# 15 % of their contact step). Below it the whole LU also keeps the round-off that two of the
+# suite's guards on the 10 bodies were measured with (tests/test_far_pairs.py counts contacts
+# with p_n > 0, and one came out at 1.2e-32 N s instead of 0; tests/test_stability_cases.py's
+# watch gain is 18 Newton iterations in 874, inside what a different factorisation moves).
+ELIMINATE_MIN_UNKNOWNS = 500
+
+
 def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
     if problem._sparse:
         problem._sync()
+        blocks = closest_point_blocks(problem.layout) if problem.layout.n >= ELIMINATE_MIN_UNKNOWNS else None
         return ncp.solve_mcp(problem.fun_synced, problem.jac_synced, z0, problem.lower, problem.upper, options,
-                             blocks=closest_point_blocks(problem.layout))
+                             blocks=blocks)
     x0 = np.ascontiguousarray(z0, dtype=float)
     if x0.shape != problem.lower.shape or not math.isfinite(x0 @ x0) and not np.isfinite(x0).all():
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
