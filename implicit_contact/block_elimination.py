@@ -155,13 +155,7 @@ def _reduced_pattern(indptr, indices, blk, rpos, cat, dst, bptr, Rptr, Ridx, Cpt
                             where[c] = ri
                             cols[m] = c
                             m += 1
-        for t in range(1, m):                 # insertion sort: tens of columns a row
-            c = cols[t]
-            u = t - 1
-            while u >= 0 and cols[u] > c:
-                cols[u + 1] = cols[u]
-                u -= 1
-            cols[u + 1] = c
+        sparse_lu.sort_head(cols, m)
         for t in range(m):
             Sj[nnz + t] = cols[t]
             where[cols[t]] = nnz + t          # (now: the data position of column cols[t] in this row)
@@ -184,52 +178,6 @@ def _reduced_pattern(indptr, indices, blk, rpos, cat, dst, bptr, Rptr, Ridx, Cpt
         nnz += m
         Sp[ri + 1] = nnz
     return nnz
-
-
-@kernel
-def _lu_inplace(A, piv):
-    """LU with partial pivoting of the small dense A in place (row swaps in piv); False if A is
-    exactly singular."""
-    m = A.shape[0]
-    for k in range(m):
-        p = k
-        big = abs(A[k, k])
-        for i in range(k + 1, m):
-            if abs(A[i, k]) > big:
-                big, p = abs(A[i, k]), i
-        if big == 0.0:
-            return False
-        piv[k] = p
-        if p != k:
-            for j in range(m):
-                A[k, j], A[p, j] = A[p, j], A[k, j]
-        for i in range(k + 1, m):
-            f = A[i, k] / A[k, k]
-            A[i, k] = f
-            if f != 0.0:
-                for j in range(k + 1, m):
-                    A[i, j] -= f * A[k, j]
-    return True
-
-
-@kernel
-def _lu_solve(A, piv, x):
-    """x = A^-1 x in place, A and piv from _lu_inplace."""
-    m = A.shape[0]
-    for k in range(m):
-        p = piv[k]
-        if p != k:
-            x[k], x[p] = x[p], x[k]
-    for i in range(m):
-        acc = x[i]
-        for j in range(i):
-            acc -= A[i, j] * x[j]
-        x[i] = acc
-    for i in range(m - 1, -1, -1):
-        acc = x[i]
-        for j in range(i + 1, m):
-            acc -= A[i, j] * x[j]
-        x[i] = acc / A[i, i]
 
 
 @kernel
@@ -269,7 +217,7 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
         nrow = Rptr[b + 1] - Rptr[b]
         Db = D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m)
         pb = piv[bptr[b]:bptr[b + 1]]
-        if not _lu_inplace(Db, pb):
+        if not sparse_lu.dense_lu(Db, pb):
             return False
         Xb = X[x_ptr[b]:x_ptr[b] + m * nc].reshape(m, nc)
         for c in range(nc):
@@ -279,7 +227,7 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
                 nonzero = nonzero or col[k] != 0.0
             if not nonzero:            # (a column of H_br that is zero at this iterate)
                 continue
-            _lu_solve(Db, pb, col[:m])
+            sparse_lu.dense_lu_solve(Db, pb, col[:m])
             for k in range(m):
                 Xb[k, c] = col[k]
         RBb = RB[rb_ptr[b]:rb_ptr[b] + nrow * m].reshape(nrow, m)
@@ -314,7 +262,7 @@ def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv,
         yb = np.empty(m)
         for k in range(m):
             yb[k] = f[bidx[bptr[b] + k]]
-        _lu_solve(D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m), piv[bptr[b]:bptr[b + 1]], yb)
+        sparse_lu.dense_lu_solve(D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m), piv[bptr[b]:bptr[b + 1]], yb)
         for k in range(m):
             y[bidx[bptr[b] + k]] = yb[k]
         nrow = Rptr[b + 1] - Rptr[b]

@@ -37,6 +37,64 @@ PIVOT_TOL = 1.0     # partial pivoting as SuperLU's default (DiagPivotThresh = 1
 
 
 @kernel
+def sort_head(a, m):
+    """a[:m] sorted in place (insertion sort: the column lists of one sparse row, tens long)."""
+    for t in range(1, m):
+        c = a[t]
+        u = t - 1
+        while u >= 0 and a[u] > c:
+            a[u + 1] = a[u]
+            u -= 1
+        a[u + 1] = c
+
+
+@kernel
+def dense_lu(A, piv):
+    """LU with partial pivoting of a small dense A in place (the multipliers below the diagonal,
+    the row swaps in piv); False if A is exactly singular (a column without a nonzero pivot)."""
+    m = A.shape[0]
+    for k in range(m):
+        p = k
+        big = abs(A[k, k])
+        for i in range(k + 1, m):
+            if abs(A[i, k]) > big:
+                big, p = abs(A[i, k]), i
+        if big == 0.0:
+            return False
+        piv[k] = p
+        if p != k:
+            for j in range(m):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+        for i in range(k + 1, m):
+            f = A[i, k] / A[k, k]
+            A[i, k] = f
+            if f != 0.0:
+                for j in range(k + 1, m):
+                    A[i, j] -= f * A[k, j]
+    return True
+
+
+@kernel
+def dense_lu_solve(A, piv, x):
+    """x = A^-1 x in place, A and piv from dense_lu."""
+    m = A.shape[0]
+    for k in range(m):
+        p = piv[k]
+        if p != k:
+            x[k], x[p] = x[p], x[k]
+    for i in range(m):
+        acc = x[i]
+        for j in range(i):
+            acc -= A[i, j] * x[j]
+        x[i] = acc
+    for i in range(m - 1, -1, -1):
+        acc = x[i]
+        for j in range(i + 1, m):
+            acc -= A[i, j] * x[j]
+        x[i] = acc / A[i, i]
+
+
+@kernel
 def factor(n, Ap, Ai, Ax, q, tol, Lp, Li, Lx, Up, Ui, Ux, pinv, x, xi, stack, mark):
     """P A Q = L U of the CSC matrix (Ap, Ai, Ax) with column order q, into preallocated L
     (Lp, Li, Lx: CSC, unit diagonal stored first in each column, rows in pivot order) and U

@@ -23,6 +23,7 @@ import math
 import numpy as np
 
 from ._jit import kernel
+from .sparse_lu import dense_lu, dense_lu_solve
 from .rows.bodies import i_plus_k, so3_coefficients, twist
 
 # body kinds of the world tables
@@ -31,33 +32,15 @@ FIXED, FREE, PLANAR, ARTICULATED = 0, 1, 2, 3
 
 @kernel
 def small_solve(A, b, out):
-    """out = A^-1 b by LU with partial pivoting on a copy of A; False if A is exactly singular."""
-    n = A.shape[0]
+    """out = A^-1 b by LU with partial pivoting on a copy of A (sparse_lu.dense_lu); False if A is
+    exactly singular."""
     M = A.copy()
-    x = b.copy()
-    for k in range(n):
-        p = k
-        big = abs(M[k, k])
-        for i in range(k + 1, n):
-            if abs(M[i, k]) > big:
-                big, p = abs(M[i, k]), i
-        if big == 0.0:
-            return False
-        if p != k:
-            for j in range(n):
-                M[k, j], M[p, j] = M[p, j], M[k, j]
-            x[k], x[p] = x[p], x[k]
-        for i in range(k + 1, n):
-            f = M[i, k] / M[k, k]
-            if f != 0.0:
-                for j in range(k + 1, n):
-                    M[i, j] -= f * M[k, j]
-                x[i] -= f * x[k]
-    for i in range(n - 1, -1, -1):
-        acc = x[i]
-        for j in range(i + 1, n):
-            acc -= M[i, j] * out[j]
-        out[i] = acc / M[i, i]
+    piv = np.empty(A.shape[0], np.int64)
+    if not dense_lu(M, piv):
+        return False
+    for i in range(b.shape[0]):
+        out[i] = b[i]
+    dense_lu_solve(M, piv, out)
     return True
 
 

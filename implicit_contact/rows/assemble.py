@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jit import kernel
+from ..sparse_lu import sort_head
 from .bodies import body_states
 from .contact import pair_rows
 from .dynamics import skeleton_rows
@@ -131,13 +132,7 @@ def sparse_pattern(n, loc_idx, loc_off, slot_off, slots, indptr, indices):
                     mark[c] = r
                     cols[m] = c
                     m += 1
-        for t in range(1, m):               # insertion sort: a row has tens of columns
-            c = cols[t]
-            u = t - 1
-            while u >= 0 and cols[u] > c:
-                cols[u + 1] = cols[u]
-                u -= 1
-            cols[u + 1] = c
+        sort_head(cols, m)                  # (a row has tens of columns)
         for t in range(m):
             indices[nnz + t] = cols[t]
             position[cols[t]] = nnz + t
