@@ -1143,15 +1143,15 @@ class _SparsePattern:
     without every diagonal entry takes scipy's general route.
 
     With solve_mcp's blocks (a step problem's closest-point blocks, layout.closest_point_blocks,
-    from step_solver.ELIMINATE_MIN_UNKNOWNS unknowns)
-    each Newton step first eliminates them (block_elimination.py) and factorises the reduced
-    matrix; the whole matrix's LU above is the fallback where a local block or the reduced matrix
-    is singular or the direction does not solve to ELIMINATED_SOLVE_TOL. Measured on 27
-    superquadrics in a box (2026-12-06, the commit before alternated): a Newton step 1.06 -> 0.66
-    ms (n ~730 -> ~310 unknowns factorised); median contact step 47.5-51.2 -> 37.6-44.9 ms; five
-    layouts of 20-40 bodies, 60 steps each, 27.1 -> 22.7 s in all. At 100 bodies the step did not
-    move (136-141 against 138-145 ms): there the whole matrix hardly fills in, and forming the
-    reduced one costs what its LU saves."""
+    from step_solver.ELIMINATE_MIN_UNKNOWNS unknowns) each Newton step first eliminates them
+    (block_elimination.py) and factorises the reduced matrix; the whole matrix's LU above is the
+    fallback where a local block or the reduced matrix is singular or the direction does not
+    solve to ELIMINATED_SOLVE_TOL. Measured on 27 superquadrics in a box (2026-12-06, the commit
+    before alternated): a Newton step 1.06 -> 0.66 ms (n ~730 -> ~310 unknowns factorised);
+    median contact step 46.5-51.2 -> 37.6-44.9 ms; five layouts of 20-40 bodies, 60 steps each,
+    26.2-27.1 -> 22.0-22.7 s in all. At 100 bodies the step did not move (136-141 against 138-145
+    ms): there the whole matrix hardly fills in, and forming the reduced one costs what its LU
+    saves."""
 
     def __init__(self, J, blocks=None):
         n = J.shape[0]
