@@ -301,6 +301,7 @@ class Structure:
     def __init__(self, indptr, indices, bptr, bidx):
         n = len(indptr) - 1
         self.n = n
+        self.source = (bptr, bidx)      # (the caller's arrays, for matches: identity)
         self.indptr = np.ascontiguousarray(indptr, dtype=np.int64)
         self.indices = np.ascontiguousarray(indices, dtype=np.int64)
         self.bptr = np.ascontiguousarray(bptr, dtype=np.int64)
@@ -359,7 +360,6 @@ def structure(indptr, indices, bptr, bidx) -> Structure:
         if st.matches(indptr, indices, bptr, bidx):
             return st
     st = Structure(indptr, indices, bptr, bidx)
-    st.source = (bptr, bidx)
     _STRUCTURES.insert(0, st)
     del _STRUCTURES[_KEPT_STRUCTURES:]
     return st
@@ -370,50 +370,29 @@ class Elimination:
     S's LU (sparse_lu.py) and the local solves, or None if a local block or S is singular. S's
     column order is its pattern's (Structure.column_order), kept while the factors stay within
     refill times the entries that order first gave, then COLAMD's of the current nonzeros for the
-    rest of the solve, as ncp does for H (a solve's round-off depends on its problem and start
-    alone)."""
+    rest of the solve, as ncp does for H (sparse_lu.KeptOrder; a solve's round-off depends on its
+    problem and start alone)."""
 
     def __init__(self, structure: Structure, refill):
         st = self.structure = structure
-        self.n, self.nr, self.refill = st.n, st.nr, refill
-        for name in ("indptr", "indices", "bptr", "bidx", "blk", "rpos", "cat", "dst", "Rptr", "Ridx", "Cptr",
-                     "Cidx", "d_ptr", "x_ptr", "rb_ptr", "upd_ptr", "upd", "Sp", "Sj"):
-            setattr(self, name, getattr(st, name))
         self.Sdata = np.zeros(len(st.Sj))
         self.D, self.X = np.zeros(max(int(st.d_ptr[-1]), 1)), np.zeros(max(int(st.x_ptr[-1]), 1))
         self.RB, self.piv = np.zeros(max(int(st.rb_ptr[-1]), 1)), np.zeros(st.n, np.int64)
         self.y, self.f_r = np.zeros(st.n), np.zeros(st.nr)
-        self.order = self.fill = None
-        self.reordered = False       # (an order of S's nonzeros replaced the structure's)
-        self.capacity = 0
-        self.workspace = sparse_lu.Workspace(st.nr)
+        self.factors = sparse_lu.KeptOrder(st.nr, refill, st.column_order)
 
     def solve(self, data, rhs):
-        if not _numeric(self.indptr, self.indices, data, self.blk, self.cat, self.dst, self.bptr, self.Rptr,
-                        self.Cptr, self.d_ptr, self.x_ptr, self.rb_ptr, self.upd_ptr, self.upd, self.D, self.X,
-                        self.RB, self.piv, self.Sdata):
+        st = self.structure
+        if not _numeric(st.indptr, st.indices, data, st.blk, st.cat, st.dst, st.bptr, st.Rptr, st.Cptr, st.d_ptr,
+                        st.x_ptr, st.rb_ptr, st.upd_ptr, st.upd, self.D, self.X, self.RB, self.piv, self.Sdata):
             return None
-        nr = self.nr
         # S's CSR arrays read as CSC are S^T: factorised as they are, S d = f is the transposed solve
-        if self.order is None and not self.reordered:
-            self.order, self.fill = self.structure.column_order(), None
-        elif self.order is None:
-            ptr, idx = np.empty(nr + 1, np.int64), np.empty(len(self.Sdata), np.int64)
-            m = sparse_lu.nonzero_pattern(self.Sp, self.Sj, self.Sdata, ptr, idx)
-            self.order, self.fill = sparse_lu.column_order(ptr, idx[:m]), None
-        self.capacity = max(self.capacity, 3 * len(self.Sdata) + nr)
-        lu = sparse_lu.SparseLU(self.Sp, self.Sj, self.Sdata, self.order, capacity=self.capacity,
-                                workspace=self.workspace)
-        self.capacity = max(self.capacity, lu.nnz)
-        if lu.ok and self.fill is None:
-            self.fill = lu.nnz
-        elif lu.ok and lu.nnz > self.refill * self.fill + nr:
-            self.order, self.reordered = None, True     # the nonzeros moved on: their order next time
+        lu = self.factors.factor(st.Sp, st.Sj, self.Sdata, len(self.Sdata))
         if not lu.ok:
             return None
-        _reduce_rhs(np.ascontiguousarray(rhs, dtype=float), self.blk, self.rpos, self.bptr, self.bidx, self.Rptr,
-                    self.Ridx, self.d_ptr, self.rb_ptr, self.D, self.RB, self.piv, self.y, self.f_r)
+        _reduce_rhs(np.ascontiguousarray(rhs, dtype=float), st.blk, st.rpos, st.bptr, st.bidx, st.Rptr, st.Ridx,
+                    st.d_ptr, st.rb_ptr, self.D, self.RB, self.piv, self.y, self.f_r)
         d_r = lu.solve(self.f_r, "T")
-        d = np.empty(self.n)
-        _back(d_r, self.y, self.blk, self.rpos, self.bptr, self.bidx, self.Cptr, self.Cidx, self.x_ptr, self.X, d)
+        d = np.empty(st.n)
+        _back(d_r, self.y, st.blk, st.rpos, st.bptr, st.bidx, st.Cptr, st.Cidx, st.x_ptr, self.X, d)
         return d

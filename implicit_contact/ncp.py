@@ -1160,14 +1160,17 @@ class _SparsePattern:
         diagonal = np.flatnonzero(self.indices == self.rows)
         self.diag = diagonal if len(diagonal) == n and np.array_equal(self.rows[diagonal], np.arange(n)) else None
         self.ip64, self.ix64 = self.indptr.astype(np.int64), self.indices.astype(np.int64)
-        self.order = self.fill = None
-        self.capacity = 0
-        self.lu_workspace = sparse_lu.Workspace(n)
+        self.factors = sparse_lu.KeptOrder(n, ORDER_REFILL)
         self.elimination = None
         if blocks is not None and self.diag is not None and len(blocks[1]):
             structure = block_elimination.structure(self.ip64, self.ix64, blocks[0], blocks[1])
             if structure.ok:
                 self.elimination = block_elimination.Elimination(structure, ORDER_REFILL)
+
+    @property
+    def order(self):
+        """The column order the whole matrix's LU keeps (sparse_lu.KeptOrder), None before one."""
+        return self.factors.order
 
     def matches(self, J) -> bool:
         return (J.indptr.shape == self.indptr.shape and J.indices.shape == self.indices.shape
@@ -1191,18 +1194,7 @@ class _SparsePattern:
                 return d
         # H's CSR arrays read as CSC are H^T: factorised as they are, H d = -Phi is solved with the
         # transposed factors (sparse_lu skips the stored zeros)
-        if self.order is None:
-            ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
-            m = sparse_lu.nonzero_pattern(self.ip64, self.ix64, data, ptr, idx)
-            self.order, self.fill = sparse_lu.column_order(ptr, idx[:m]), None
-        self.capacity = max(self.capacity, 3 * nonzero + n)
-        lu = sparse_lu.SparseLU(self.ip64, self.ix64, data, self.order, capacity=self.capacity,
-                                workspace=self.lu_workspace)
-        self.capacity = max(self.capacity, lu.nnz)
-        if lu.ok and self.fill is None:
-            self.fill = lu.nnz
-        elif lu.ok and lu.nnz > ORDER_REFILL * self.fill + n:
-            self.order = None             # the nonzeros moved on: a new column order next time
+        lu = self.factors.factor(self.ip64, self.ix64, data, nonzero)
         if not lu.ok:
             return None
         d = lu.solve(-Phi, "T")

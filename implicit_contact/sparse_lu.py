@@ -342,3 +342,38 @@ class SparseLU:
         solve(self.n, self.q, self.pinv, self.Lp, self.Li, self.Lx, self.Up, self.Ui, self.Ux,
               np.ascontiguousarray(b, dtype=float), out, self.ws.work, trans == "T")
         return out
+
+
+class KeptOrder:
+    """The factorisations of one solve's matrices of one pattern (CSR arrays, read as CSC), in a
+    column order kept while the factors stay within refill times the entries that order first
+    gave: first_order() at the start (None: COLAMD of the first matrix's nonzeros), COLAMD of
+    the current nonzeros once the factors outgrow it (the nonzeros of a Newton matrix change
+    with the active pieces of its FB rows). One Workspace; the factors' capacity is kept."""
+
+    def __init__(self, n, refill, first_order=None):
+        self.n, self.refill, self.first_order = n, refill, first_order
+        self.order = self.fill = None
+        self.reordered = False       # (an order of the nonzeros replaced first_order's)
+        self.capacity = 0
+        self.workspace = Workspace(n)
+
+    def factor(self, indptr, indices, data, entries) -> SparseLU:
+        """SparseLU of the matrix (entries: its count of nonzeros, for the factors' first room)."""
+        n = self.n
+        if self.order is None:
+            if self.first_order is not None and not self.reordered:
+                self.order = self.first_order()
+            else:
+                ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
+                m = nonzero_pattern(indptr, indices, data, ptr, idx)
+                self.order = column_order(ptr, idx[:m])
+            self.fill = None
+        self.capacity = max(self.capacity, 3 * entries + n)
+        lu = SparseLU(indptr, indices, data, self.order, capacity=self.capacity, workspace=self.workspace)
+        self.capacity = max(self.capacity, lu.nnz)
+        if lu.ok and self.fill is None:
+            self.fill = lu.nnz
+        elif lu.ok and lu.nnz > self.refill * self.fill + n:
+            self.order, self.reordered = None, True      # the nonzeros moved on: their order next time
+        return lu

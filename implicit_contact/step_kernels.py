@@ -405,18 +405,6 @@ def free_coriolis_jacobian(M, w, out):
 
 
 @kernel
-def stage1_free_tables(MB, V, FB, MB1, FB1, o, mo, h, C):
-    """Order 2's stage-1 tables of a free body without joint springs or dampers (rattle.py,
-    eq R1): MB1 = M + h/2 dc/dv at (q, v) (C: its (6, 6) workspace), FB1 = f / 2."""
-    M = MB[mo:mo + 36].reshape(6, 6)
-    free_coriolis_jacobian(M, V[o:o + 3], C)
-    for i in range(6):
-        FB1[o + i] = 0.5 * FB[o + i]
-        for j in range(6):
-            MB1[mo + 6 * i + j] = M[i, j] + 0.5 * h * C[i, j]
-
-
-@kernel
 def given_poses(W):
     """The fixed and articulated bodies' poses from DART's transforms TG (4 x 4); returns whether a
     fixed body moved since the last call (its unbounded pieces' exact boxes are then stale)."""

@@ -836,9 +836,10 @@ class ImplicitContactStepper:
             if not k:
                 continue
             if rec.kind == adapter.FREE and rec.spring_damper is None:     # (MB then holds DART's M)
-                sk.stage1_free_tables(w.MB, w.V, w.FB, w.MB1, w.FB1, o, mo, h, self._coriolis)
-                continue
-            C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
+                C = self._coriolis
+                sk.free_coriolis_jacobian(w.MB[mo:mo + k * k].reshape(k, k), w.V[o:o + 3], C)
+            else:
+                C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
             M1 = w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C
             w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
             if rec.spring_damper is not None:
