@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from . import sparse_lu
-from ._jit import kernel
+from ._jit import kernel, lean_kernel
 
 RR, BB, BR, RB = 0, 1, 2, 3       # a stored entry of H by its row's and its column's part
 
@@ -273,7 +273,7 @@ def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv,
             f_r[rpos[Ridx[Rptr[b] + r]]] -= acc
 
 
-@kernel
+@lean_kernel
 def _back(d_r, y, blk, rpos, bptr, bidx, Cptr, Cidx, x_ptr, X, d):
     """d: d_r on r, and d_b = y_b - X_b d_r[C_b] on the blocks."""
     n = d.shape[0]

@@ -132,7 +132,7 @@ import scipy.sparse.linalg as spla
 
 from . import block_elimination
 from . import sparse_lu
-from ._jit import generator_kernel, kernel
+from ._jit import generator_kernel, kernel, lean_kernel
 
 __all__ = ["solve_mcp", "solve_proximal", "newton_min_map", "SolverOptions", "McpResult", "Status"]
 
@@ -314,7 +314,7 @@ def options_array(options: SolverOptions) -> np.ndarray:
     return o
 
 
-@kernel
+@lean_kernel
 def _phi(a, b, lam, w):
     """phi_lam(a, b) for a >= 0 without cancellation (w = 1 - lam on a bounded level, 0 on an
     absent one)."""
@@ -326,7 +326,7 @@ def _phi(a, b, lam, w):
     return lam * fb + (w * a) * max(b, 0.0)
 
 
-@kernel
+@lean_kernel
 def _partials(a, b, lam, w):
     """(d phi / da, d phi / db, kink) of phi_lam; at a kink the FB part is left at 1."""
     r = math.hypot(a, b)
@@ -341,7 +341,7 @@ def _partials(a, b, lam, w):
     return pa, pb, kink
 
 
-@kernel
+@lean_kernel
 def _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out):
     """Per row: finite stand-ins of the bounds and the FB / penalty weights of each level; returns
     whether any row has an upper bound (two levels)."""
@@ -364,7 +364,7 @@ def _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out):
     return two
 
 
-@kernel
+@lean_kernel
 def _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi):
     """Phi(x) (Billups' box function, penalised); returns psi = |Phi|^2 / 2."""
     psi = 0.0
@@ -379,7 +379,7 @@ def _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi):
     return 0.5 * psi
 
 
-@kernel
+@lean_kernel
 def _natural_residual(x, F, lo, hi):
     res = 0.0
     for i in range(x.shape[0]):
@@ -388,7 +388,7 @@ def _natural_residual(x, F, lo, hi):
     return res
 
 
-@kernel
+@lean_kernel
 def _stalled(history, nhist):
     """Whether the best of the last STALL_WINDOW merits in history[:nhist] is above STALL_GAIN
     times the best before them (Newton in its quadratic basin gains orders of magnitude an
@@ -404,7 +404,7 @@ def _stalled(history, nhist):
     return last > STALL_GAIN * before
 
 
-@kernel
+@lean_kernel
 def _finite(v):
     acc = 0.0
     for i in range(v.shape[0]):
@@ -697,7 +697,7 @@ def dense_lm(H, g, mu, d):
     return dense_solve(A, rhs, d)
 
 
-@kernel
+@lean_kernel
 def dense_hg_sq(H, g):
     acc = 0.0
     for i in range(H.shape[0]):
@@ -708,7 +708,7 @@ def dense_hg_sq(H, g):
     return acc
 
 
-@kernel
+@lean_kernel
 def matvec(J, v, out):
     for i in range(J.shape[0]):
         acc = 0.0
@@ -720,7 +720,7 @@ def matvec(J, v, out):
 # ---------------------------------------------------------------------------------------------
 # the Python driver: F and J from callables
 # ---------------------------------------------------------------------------------------------
-@kernel
+@lean_kernel
 def nonfinite(J) -> int:
     """1 if an entry of J is NaN or inf, else 0 (ncp's I_BAD)."""
     for i in range(J.shape[0]):
@@ -1100,7 +1100,7 @@ def _matvec(J, v):
     return out
 
 
-@kernel
+@lean_kernel
 def sparse_newton_matrix(indptr, indices, Jdata, da, db, diag, Phi, data, g):
     """H = diag(da) + diag(db) J on J's CSR pattern (diag: the position of each row's diagonal
     entry) into data, and g = H^T Phi; returns H's number of nonzero entries."""

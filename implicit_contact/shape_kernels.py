@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import kernel, lean_kernel
 
 BALL, ELLIPSOID, POWER, BARR, PLANE, CYLINDER = 1, 2, 3, 4, 5, 6
 
@@ -60,7 +60,7 @@ def pack(code: int, dim: int, center=None, rotation=None, semi_axes=None, n1=2.0
     return par
 
 
-@kernel
+@lean_kernel
 def _local_power(par, X0, X1, X2, order):
     """Single-exponent power sum in its local frame (the superquadric / superellipse), at the
     local point (X0, X1, X2): (f, local gradient (3), local Hessian diagonal (3))."""
@@ -86,7 +86,7 @@ def _local_power(par, X0, X1, X2, order):
     return k * (v - 1.0), g0, g1, g2, h0, h1, h2
 
 
-@kernel
+@lean_kernel
 def _local_barr(par, X0, X1, X2, order):
     """Barr's superquadric in its local frame: g = w^n1 + |Z|^n1, w = (|X|^n2 + |Y|^n2)^(1/n2).
     Returns (f, local gradient (3), local Hessian xx, yy, xy, zz)."""
@@ -117,7 +117,7 @@ def _local_barr(par, X0, X1, X2, order):
     return k * (v - 1.0), g0, g1, g2, hxx, hyy, hxy, hzz
 
 
-@kernel
+@lean_kernel
 def evaluate(par, x, g, H, order):
     """f(x) of the function ``par`` at the body-frame point x (3,); order >= 1 writes its
     gradient into g (3,), order >= 2 its Hessian into H (3, 3) (both body frame, z entries zero

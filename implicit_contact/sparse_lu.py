@@ -31,12 +31,12 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import lean_kernel
 
 PIVOT_TOL = 1.0     # partial pivoting as SuperLU's default (DiagPivotThresh = 1)
 
 
-@kernel
+@lean_kernel
 def sort_head(a, m):
     """a[:m] sorted in place (insertion sort: the column lists of one sparse row, tens long)."""
     for t in range(1, m):
@@ -48,7 +48,7 @@ def sort_head(a, m):
         a[u + 1] = c
 
 
-@kernel
+@lean_kernel
 def dense_lu(A, piv):
     """LU with partial pivoting of a small dense A in place (the multipliers below the diagonal,
     the row swaps in piv); False if A is exactly singular (a column without a nonzero pivot)."""
@@ -74,7 +74,7 @@ def dense_lu(A, piv):
     return True
 
 
-@kernel
+@lean_kernel
 def dense_lu_solve(A, piv, x):
     """x = A^-1 x in place, A and piv from dense_lu."""
     m = A.shape[0]
@@ -94,7 +94,7 @@ def dense_lu_solve(A, piv, x):
         x[i] = acc / A[i, i]
 
 
-@kernel
+@lean_kernel
 def factor(n, Ap, Ai, Ax, q, tol, Lp, Li, Lx, Up, Ui, Ux, pinv, x, xi, stack, mark):
     """P A Q = L U of the CSC matrix (Ap, Ai, Ax) with column order q, into preallocated L
     (Lp, Li, Lx: CSC, unit diagonal stored first in each column, rows in pivot order) and U
@@ -202,7 +202,7 @@ def factor(n, Ap, Ai, Ax, q, tol, Lp, Li, Lx, Up, Ui, Ux, pinv, x, xi, stack, ma
     return lnz + unz
 
 
-@kernel
+@lean_kernel
 def residual_ok(indptr, indices, data, d, rhs, rel):
     """Whether d solves the CSR system (indptr, indices, data) d = rhs to ||A d - rhs|| <= rel ||rhs||
     (and d is finite)."""
@@ -218,7 +218,7 @@ def residual_ok(indptr, indices, data, d, rhs, rel):
     return math.isfinite(rr) and rr <= rel * rel * bb
 
 
-@kernel
+@lean_kernel
 def nonzero_pattern(indptr, indices, data, out_ptr, out_idx):
     """The pattern of the entries of a compressed matrix that are not stored zeros, into out_ptr
     (n + 1) and out_idx; returns their number."""
@@ -234,7 +234,7 @@ def nonzero_pattern(indptr, indices, data, out_ptr, out_idx):
     return m
 
 
-@kernel
+@lean_kernel
 def solve(n, q, pinv, Lp, Li, Lx, Up, Ui, Ux, b, out, work, transpose):
     """out = A^-1 b (transpose: A^-T b) from factor's P A Q = L U; work: length n."""
     if not transpose:

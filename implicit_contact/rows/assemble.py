@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import kernel, lean_kernel
 from ..sparse_lu import sort_head
 from .bodies import body_states
 from .contact import pair_rows
@@ -24,7 +24,7 @@ from .dynamics import skeleton_rows
 from .support import support_rows
 
 
-@kernel
+@lean_kernel
 def _scatter(idx, base, L, FL, JL, F, J, data, slots, slot_base, need_jac, sparse):
     for i in range(L):
         F[idx[base + i]] += FL[i]
@@ -45,7 +45,7 @@ def _scatter(idx, base, L, FL, JL, F, J, data, slots, slot_base, need_jac, spars
                     J[gi, idx[base + j]] += v
 
 
-@kernel
+@lean_kernel
 def assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
              loc_idx, loc_off, slots, slot_off, scale, data_scale, z, F, J, data, rep,
              st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, need_jac, sparse):

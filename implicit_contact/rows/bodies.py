@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel
+from .._jit import kernel, lean_kernel
 
 FIXED, MOVING, PLANAR = 0, 1, 2
 
@@ -42,7 +42,7 @@ B_R0, B_P0, B_THETA0, B_H = 0, 9, 12, 13
 NBF = 14
 
 
-@kernel
+@lean_kernel
 def so3_coefficients(th2):
     """(a, b, c) of exp(K) = I + a K + b K^2 and J_l = I + b K + c K^2, th2 = |phi|^2."""
     th = math.sqrt(th2)
@@ -53,7 +53,7 @@ def so3_coefficients(th2):
     return s / th, b, (th - s) / (th2 * th)
 
 
-@kernel
+@lean_kernel
 def i_plus_k(phi, th2, a, b, out):
     """out = I + a K + b K^2, K = [phi]x (K^2 = phi phi^T - th2 I)."""
     f0, f1, f2 = phi[0], phi[1], phi[2]
@@ -69,7 +69,7 @@ def i_plus_k(phi, th2, a, b, out):
     out[2, 2] = 1.0 + b * f2 * f2 - bt
 
 
-@kernel
+@lean_kernel
 def twist(jac, off, k, v, col, w, vo):
     """An articulated body's angular velocity w = A_w v and origin velocity vo = A_v v, from its
     6 x k Jacobian [A_w; A_v] (row-major at jac[off:]) and the skeleton's velocities v[col:col+k]."""

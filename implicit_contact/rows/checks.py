@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import math
 
-from .._jit import kernel
+from .._jit import lean_kernel
 from . import contact as rc
 
 OFF, ON, THROUGH, GAP, CONE = 1, 2, 4, 8, 16
 CONE_SLACK = 10.0    # (module docstring) the cone row's residual a converged solve may leave, in tols
 
 
-@kernel
+@lean_kernel
 def solution_checks(pair_i, pair_f, z, rep, tol, solver_tol, touch, flags):
     """flags[k] per pair (module docstring); returns their bitwise or."""
     every = 0

@@ -98,7 +98,7 @@ import math
 
 import numpy as np
 
-from .._jit import ONE, TWO, kernel
+from .._jit import ONE, TWO, lean_kernel
 from .. import shape_kernels as sk
 
 # pair_i columns
@@ -135,21 +135,21 @@ V_TH, V_P, V_W, V_VO = 0, 3, 6, 9
 NV_EXTRA = 30
 
 
-@kernel
+@lean_kernel
 def _skew(v, out):
     out[0, 0], out[0, 1], out[0, 2] = 0.0, -v[2], v[1]
     out[1, 0], out[1, 1], out[1, 2] = v[2], 0.0, -v[0]
     out[2, 0], out[2, 1], out[2, 2] = -v[1], v[0], 0.0
 
 
-@kernel
+@lean_kernel
 def _cross(a, b, out):
     out[0] = a[1] * b[2] - a[2] * b[1]
     out[1] = a[2] * b[0] - a[0] * b[2]
     out[2] = a[0] * b[1] - a[1] * b[0]
 
 
-@kernel
+@lean_kernel
 def _world_eval(par, R, p, a, r, G, Hw, xi, g, H, order):
     """f of one body function at the world point a of a body posed (R, p): sets r = a - p,
     G = R grad f(xi), Hw = R H R^T (order 2), xi = R^T r; returns f."""
@@ -172,7 +172,7 @@ def _world_eval(par, R, p, a, r, G, Hw, xi, g, H, order):
     return f
 
 
-@kernel
+@lean_kernel
 def _add_df(D, row, c, G, r, va, vtw, tmp):
     """D[row] += c df with df = G.da - (r x G).dtheta - G.dp (a at va, the body's twist at vtw)."""
     _cross(r, G, tmp)
@@ -182,7 +182,7 @@ def _add_df(D, row, c, G, r, va, vtw, tmp):
         D[row, vtw + V_P + i] -= c * G[i]
 
 
-@kernel
+@lean_kernel
 def _add_dG(D3, c, G, Hw, r, va, vtw, S, Sr):
     """D3 (3, NV) += c dG, dG = Hw da + (-[G]x + Hw [r]x) dtheta - Hw dp."""
     _skew(G, S)
@@ -195,7 +195,7 @@ def _add_dG(D3, c, G, Hw, r, va, vtw, S, Sr):
             D3[i, vtw + V_P + j] -= c * Hw[i, j]
 
 
-@kernel
+@lean_kernel
 def _add_dvpoint(D3, sgn, wb, rb, va, vtw, S, Sr):
     """D3 += sgn d(v_o + omega x r), r = a - p: dv_o - [r]x domega + [omega]x (da - dp)."""
     _skew(rb, Sr)
@@ -208,7 +208,7 @@ def _add_dvpoint(D3, sgn, wb, rb, va, vtw, S, Sr):
             D3[q, vtw + V_P + m] -= sgn * S[q, m]
 
 
-@kernel
+@lean_kernel
 def _fold_row(Drow, out, sign, nblk, x0, ca1, na1, T1, ca2, na2, T2, Tb1, k1, Tb2, k2):
     """out (a row of the local block, columns [v1 (k1), v2 (k2), block]) += sign * the row of
     derivatives Drow over the local variables, chained to the unknowns (see the docstring)."""
@@ -236,7 +236,7 @@ def _fold_row(Drow, out, sign, nblk, x0, ca1, na1, T1, ca2, na2, T2, Tb1, k1, Tb
         out[k1 + j] += sign * acc
 
 
-@kernel
+@lean_kernel
 def _add_frozen_slip(D, row, c, e0, r10, r20, TW1, TW2, tmp):
     """D[row] += c d(e0 . v_rel0): the slip along e0 of the material points at the levers r_b0
     (fixed), d = sum_b s_b (e0 . dv_o + (r_b0 x e0) . domega)."""
@@ -250,7 +250,7 @@ def _add_frozen_slip(D, row, c, e0, r10, r20, TW1, TW2, tmp):
         D[row, TW1 + V_W + q] -= c * tmp[q]
 
 
-@kernel
+@lean_kernel
 def _tangent_derivatives(n, e, en, t, nu, o, Dt, Do):
     """dt/dn and do/dn for t = u / |u|, u = e - (e.n) n, o = n x t (nu = |u|, en = e.n):
     du/dn = -n e^T - (e.n) I, dt/dn = Q du/dn with Q = (I - t t^T) / nu, do/dn = -[t]x + [n]x dt/dn.
@@ -285,7 +285,7 @@ def _tangent_derivatives(n, e, en, t, nu, o, Dt, Do):
             Do[i, j] = -st - wi * e[j] - k * (sn - o[i] * t[j])
 
 
-@kernel
+@lean_kernel
 def _take(ws, at, n):
     """n zeroed floats of the workspace ws from at: (the view, the next free index)."""
     v = ws[at:at + n]
@@ -300,7 +300,7 @@ def workspace_size(m1: int, m2: int, nblk: int) -> int:
     return 65 * 9 + 24 * (m1 + m2) + nv * (nblk + 12 * 3 + 1)
 
 
-@kernel
+@lean_kernel
 def pair_rows(pi, pf, fpar, R, p, w, vo, T, z, FL, JL, rep, need_jac, ws):
     """One pair's rows and impulses at z (the bodies' states from bodies.body_states).
 
@@ -314,7 +314,7 @@ def pair_rows(pi, pf, fpar, R, p, w, vo, T, z, FL, JL, rep, need_jac, ws):
                z, FL, JL, rep, need_jac, ws)
 
 
-@kernel
+@lean_kernel
 def _pair_rows(pi, pf, fpar, R1, p1, w1, vo1, Tb1, R2, p2, w2, vo2, Tb2, z, FL, JL, rep, need_jac, ws):
     d = pi[P_DIM]
     m1, m2 = pi[P_M1], pi[P_M2]

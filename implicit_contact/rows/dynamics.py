@@ -24,7 +24,7 @@ u_r.
 """
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import lean_kernel
 
 # sk_i columns: first velocity column, number of dofs, offset of its float table in sk_M, first
 # joint-row column, number of joint rows
@@ -37,7 +37,7 @@ def table_size(k: int, nj: int) -> int:
     return k * k + nj * (k + 2)
 
 
-@kernel
+@lean_kernel
 def skeleton_rows(ki, sk_M, v0, hforce, z, FL, JL, need_jac):
     """FL (k + n_j,) = [M (v - v0) - h force - sum_r u_r g_r lambda_r; g_r . v + c_r] over the
     skeleton's plan (its velocity columns, then its joint-row columns); JL = [[M, -u g^T], [g, 0]]."""

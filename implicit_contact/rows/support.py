@@ -11,7 +11,7 @@ Local block: [the body's velocities (3), y (ny), sigma].
 """
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import lean_kernel
 
 # sup_i columns: the body's velocity column, y's column, ny, sigma's column
 S_VCOL, S_Y, S_NY, S_SIG = 0, 1, 2, 3
@@ -21,7 +21,7 @@ S_E, S_SCALE = 0, 9
 NSF = 10
 
 
-@kernel
+@lean_kernel
 def support_rows(si, sf, z, FL, JL, need_jac):
     """FL (3 + ny + 1,) and JL over [v (3), y (ny), sigma] of one support block."""
     vcol, ycol, ny, scol = si[S_VCOL], si[S_Y], si[S_NY], si[S_SIG]

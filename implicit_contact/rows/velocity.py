@@ -46,7 +46,7 @@ sum_i P_n,i - (L - beta w) (the core's impulse) complementary to w >= 0 when its
 """
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import lean_kernel
 
 # pair_i columns
 V_COL, V_NT, V_NR, V_NS, V_NVERT, V_OPEN, V_LAYER, V_PARENT = 0, 1, 2, 3, 4, 5, 6, 7
@@ -56,7 +56,7 @@ V_MU, V_ET, V_EO, V_ER, V_SP, V_R1, V_LOAD, V_DAMP = 0, 1, 2, 3, 4, 5, 9, 10
 NVF = 11
 
 
-@kernel
+@lean_kernel
 def velocity_rows(body, a, frame, bcol, bk, bJ, bp, G):
     """G (npairs, 4, nv) of the closed pairs (module docstring). body (npairs, 2): each end's
     body index or -1 (fixed); a (npairs, 2, 3) the points; frame (npairs, 3, 3) rows n, t, o;
@@ -85,7 +85,7 @@ def velocity_rows(body, a, frame, bcol, bk, bJ, bp, G):
                 G[c, 3, col + j] += sgn * (n0 * bJ[b, 0, j] + n1 * bJ[b, 1, j] + n2 * bJ[b, 2, j])
 
 
-@kernel
+@lean_kernel
 def stage2_rows(x, M, u, hf, scale, G, pi, pf, jg, ju, jk, jcol, F, J, need_jac):
     """F (n,) and, when need_jac, J (n, n) of (R5)-(R7) and the joint rows at x (module docstring)."""
     nv = M.shape[0]
