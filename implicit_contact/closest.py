@@ -79,7 +79,7 @@ from scipy.optimize import linprog, nnls
 
 from . import ncp
 from . import shape_kernels as sk
-from ._jit import kernel
+from ._jit import kernel, lean_kernel
 from .ncp import SolverOptions, Status, solve_mcp
 from .shapes import ConvexFunction, HalfPlane, HalfSpace, Intersection, Union, _nonzero
 
@@ -348,7 +348,7 @@ def _weighted(w: np.ndarray, H: np.ndarray) -> np.ndarray:
     return w[0] * H[0] if len(w) == 1 else np.einsum("k,kij->ij", w, H)
 
 
-@kernel
+@lean_kernel
 def _body_eval(z, off, dim, L, par, b0, B, R, xb, gb, Hb, G, Hw, order):
     """_Body.eval of a single function at y = z[off:off + dim]: its scaled value f / L (returned),
     world gradient G = R grad f and (order 2) scaled world Hessian Hw = L R Hess f R^T."""
@@ -376,7 +376,7 @@ def _body_eval(z, off, dim, L, par, b0, B, R, xb, gb, Hb, G, Hw, order):
     return v / L
 
 
-@kernel
+@lean_kernel
 def _static_rows(z, dim, L, par1, b01, B1, R1, par2, b02, B2, R2, N2, c2, F, J, need_jac, xb, gb, Hb, G1, H1, H2,
                  V2, G2):
     """_scaled_form's rows (eqs 15-18, k1 = 0) for a single-function body 1 and, as body 2, a

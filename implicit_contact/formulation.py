@@ -143,7 +143,7 @@ class BodyKinematics:
         z = np.zeros(max(k, 1))
         z[:k] = np.asarray(v, float)[:k]
         flat = np.zeros(0) if jac is None else np.ascontiguousarray(jac).ravel()
-        rb.body_states(bi[None, :], bf[None, :], flat, z, R, p, w, vo, T)
+        rb.body_states(bi[None, :], bf[None, :], flat, z, R, p, w, vo, T, np.zeros(12))
         d = self.dim
         return Pose(R[0, :d, :d].copy(), p[0, :d].copy(), w[0].copy())
 
@@ -220,7 +220,7 @@ class StepProblem:
         self._rep = np.zeros((len(specs), rc.NREP))
         t = self.tables
         nb = len(bodies)
-        wsize = max([1] + [rc.workspace_size(int(p[rc.P_M1]), int(p[rc.P_M2]), int(p[rc.P_NBLK])) for p in t.pair_i])
+        wsize = max([12] + [rc.workspace_size(int(p[rc.P_M1]), int(p[rc.P_M2]), int(p[rc.P_NBLK])) for p in t.pair_i])
         self._work = (np.zeros((nb, 3, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)), np.zeros((nb, 3)),
                       np.zeros((nb, 12, t.kmax)), np.zeros(t.lmax), np.zeros((t.lmax, t.lmax)), np.zeros(wsize))
         self.refresh(h, skeletons, bodies, specs, supports, source)

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import patch as contact_patch
-from ._jit import kernel
+from ._jit import lean_kernel
 
 PGS_SWEEPS = 2000       # projected Gauss-Seidel sweeps at most
 PGS_TOL = 1e-12         # stop when no lambda_i changes by more than this (relative to max lambda)
@@ -198,7 +198,7 @@ def _point_row(kin, x, n):
     return np.r_[rn, n]
 
 
-@kernel
+@lean_kernel
 def pgs(W, b, mu, lam, sweeps, tol):
     """Projected Gauss-Seidel on the contact points' impulses lam = (n, t, o) per point: the
     normal one in 0 <= lam_n _|_ (W lam + b)_n >= 0, the friction one (t, o) solved for

@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import kernel, lean_kernel
 from .rows import bodies as rb
 from .rows import contact as rc
 from .rows import dynamics as rd
@@ -166,7 +166,7 @@ def _point_velocity(body_i, body_f, body_jac, v0, b, a, out):
         out[2] += w[0] * r1 - w[1] * r0
 
 
-@kernel
+@lean_kernel
 def _tangents(n, e, t, o):
     """Gram-Schmidt tangents of rows/contact.py: t = (e - (e.n) n)/|...|, o = n x t."""
     en = e[0] * n[0] + e[1] * n[1] + e[2] * n[2]
@@ -178,7 +178,7 @@ def _tangents(n, e, t, o):
     o[2] = n[0] * t[1] - n[1] * t[0]
 
 
-@kernel
+@lean_kernel
 def _carry_multipliers(pi, oi, z_old, c0, o0, z0):
     """A pair's multipliers (and a cone-form pair's s) from its memory: the same pair, with the
     same functions on the same sides."""
@@ -301,7 +301,7 @@ def warm_start(pair_i, pair_f, body_i, body_f, body_jac, sk_i, v0, v_free, mem, 
             z0[col + i] = v0[col + i] if use_v0 else v_free[col + i]
 
 
-@kernel
+@lean_kernel
 def choose_axis(axis, normal, limit, out):
     """A pair's tangent axis (rows/contact.py, Gram-Schmidt on it): kept while |axis . n| <= limit,
     else the world axis least aligned with n (the first of the smallest |n_i|). Returns whether
@@ -345,7 +345,7 @@ def carry_pairs(pair_i, pair_f, old_i, old_f, z_old, rep_old, touch, limit):
     return True
 
 
-@kernel
+@lean_kernel
 def known_gaps(pair_i, z, rep, eligible, tol, out):
     """Per pair of a memory: the known lower bound of its gap for the next far-pair test
     (ImplicitContactStepper._known_gap): the Euclidean distance of its separated closest points

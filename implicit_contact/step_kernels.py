@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from ._jit import kernel
+from ._jit import kernel, lean_kernel
 from .sparse_lu import dense_lu, dense_lu_solve
 from .rows.bodies import i_plus_k, so3_coefficients, twist
 
@@ -161,7 +161,7 @@ def motion_margins(ob_body, ob_reach, bd_kind, bd_sk, bd_joff, sk_voff, sk_nv, V
         margins[o] += 0.5 * h * (lin + ang * ob_reach[o])
 
 
-@kernel
+@lean_kernel
 def piece_boxes(ob_body, ob_bounded, ob_dim, ob_centre, ob_half, exact_lo, exact_hi, R1, p1, R2, p2, join,
                 lo, hi):
     """World boxes of the pieces: bounded ones from their rotated body-frame boxes at pose 1,
@@ -196,7 +196,7 @@ def piece_boxes(ob_body, ob_bounded, ob_dim, ob_centre, ob_half, exact_lo, exact
                     hi[o, i] = max(hi[o, i], c + e)
 
 
-@kernel
+@lean_kernel
 def overlapping(P, glo, ghi, out):
     """out[k] = the grown boxes of pair P[k] overlap (closed intervals on every axis)."""
     count = 0
@@ -216,7 +216,7 @@ def overlapping(P, glo, ghi, out):
 # ---------------------------------------------------------------------------------------------
 # pairs that cannot touch within the step (ImplicitContactStepper._far_pairs explains the bound)
 # ---------------------------------------------------------------------------------------------
-@kernel
+@lean_kernel
 def _motion(o, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, v):
     """(|omega| rho) of piece o's body at the world velocities Vel; v (3,): its origin's velocity."""
     b = ob_body[o]
@@ -275,7 +275,7 @@ def far_after(P, gap, ob_body, ob_radius, bd_kind, bd_sk, sk_voff, Vel, h, tol, 
     return violated
 
 
-@kernel
+@lean_kernel
 def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff, V_solved, VF, margins, h, tol):
     """Whether some piece's solved motion leaves what its broadphase margin allowed for
     (ImplicitContactStepper._uncovered). A piece's candidate box joins its boxes at l and after
@@ -298,7 +298,7 @@ def moved_beyond_margins(ob_body, ob_radius, ob_bounded, bd_kind, bd_sk, sk_voff
     return False
 
 
-@kernel
+@lean_kernel
 def _motion_off(kind, V_solved, VF, off, s, h, rho):
     """h (|v - s v_F| + |omega - s omega_F| rho) of a free or planar body at columns off."""
     if kind == PLANAR:
@@ -312,7 +312,7 @@ def _motion_off(kind, V_solved, VF, off, s, h, rho):
     return h * (lin + ang * rho)
 
 
-@kernel
+@lean_kernel
 def all_finite(a, b, c, d):
     """Whether every entry of the four arrays is finite."""
     for x in (a, b, c, d):

@@ -51,7 +51,7 @@ def assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pai
              st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, need_jac, sparse):
     """F (and J or its sparse values) of the step at z; rep: the pairs' reports (contact.R_*);
     ws: the pair rows' workspace (contact.workspace_size of the largest pair)."""
-    body_states(body_i, body_f, body_jac, z, st_R, st_p, st_w, st_vo, st_T)
+    body_states(body_i, body_f, body_jac, z, st_R, st_p, st_w, st_vo, st_T, ws)   # (ws: scratch until the pairs)
     n = F.shape[0]
     for i in range(n):
         F[i] = 0.0

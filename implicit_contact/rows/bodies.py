@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from .._jit import kernel, lean_kernel
+from .._jit import lean_kernel
 
 FIXED, MOVING, PLANAR = 0, 1, 2
 
@@ -84,12 +84,12 @@ def twist(jac, off, k, v, col, w, vo):
         vo[i] = av
 
 
-@kernel
-def body_states(body_i, body_f, body_jac, z, R, p, w, vo, T):
+@lean_kernel
+def body_states(body_i, body_f, body_jac, z, R, p, w, vo, T, scratch):
     """Every body's pose at l+1, angular and origin velocity and twist rows T (see the module
-    docstring) at the unknowns z."""
-    E = np.zeros((3, 3))
-    phi = np.zeros(3)
+    docstring) at the unknowns z; scratch: 12 floats of workspace."""
+    E = scratch[0:9].reshape((3, 3))
+    phi = scratch[9:12]
     for b in range(body_i.shape[0]):
         kind = body_i[b, B_KIND]
         col, k = body_i[b, B_VCOL], body_i[b, B_NV]

@@ -18,13 +18,13 @@ first two entries.
 """
 from __future__ import annotations
 
-from .._jit import kernel
+from .._jit import lean_kernel
 from . import bodies as rb
 from . import dynamics as rd
 from . import support as rs
 
 
-@kernel
+@lean_kernel
 def fill_state(src, R_src, p_src, th_src, J_src, J_at, h_body, sk_src, src_voff, src_moff, V_src, MB_src, FB_src,
                h, dim, body_i, body_f, body_jac, sk_i, sk_M, v0, hforce, scale, pos_rows, sup_body, sup_c, sup_er,
                sup_mun, sup_f):
