@@ -23,6 +23,8 @@ History (shared 2-core VM, median CPU ms per landed step, steps 10-15):
         DART's native step of the box layout in the same run: 0.38 / 0.63 / 1.7 ms.
     compiled sparse LU, closest-point blocks eliminated first (block_elimination.py), 2026-12-06:
         17-19 / 29-33 / 136-141 (the commit before, alternated: 17-19 / 31-33 / 138-145).
+    lean kernels (no reference counts on their views, _jit.lean_kernel), 2026-12-07:
+        15-18 / 23 / 101-112 (the commit before, alternated: 16 / 28 / 121-123).
 What remains at 100 bodies (steps 11-15, timed per call): ~2-3 solves per landing step (friction
 rows switched on) of ~10 Newton iterations, each iteration two compiled assemblies of F and J (~0.7
 ms each for ~175 pairs: the line search's trial and the new iterate) and one Newton step (~1.1 ms:
