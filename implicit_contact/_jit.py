@@ -52,10 +52,24 @@ def _source_hash() -> str:
     return digest.hexdigest()
 
 
+def _cache_subfolders() -> tuple:
+    """The folders numba gives this package's two source folders inside a cache root such as
+    NUMBA_CACHE_DIR: the folder's name and the SHA1 of its absolute path
+    (numba.core.caching._CacheLocator.get_suitable_cache_subpath), so the rows' kernels are
+    under rows_<sha1>, a name without the package's."""
+    folders = (_PACKAGE, os.path.join(_PACKAGE, "rows"))
+    return tuple(os.path.basename(f) + "_" + hashlib.sha1(f.encode()).hexdigest() for f in folders)
+
+
 def _cache_files(folder: str) -> list:
-    """This package's cached kernels in one cache folder (NUMBA_CACHE_DIR mirrors source paths)."""
-    found = glob.glob(os.path.join(folder, "**", "*.nb[ic]"), recursive=True)
-    return [p for p in found if "implicit_contact" in p or folder.startswith(_PACKAGE)]
+    """This package's cached kernels in one cache folder: a __pycache__ beside the modules, or a
+    cache root (NUMBA_CACHE_DIR) with this package's subfolders (_cache_subfolders). Before
+    2026-12-07 only paths containing "implicit_contact" were taken, which missed the rows' folder:
+    with NUMBA_CACHE_DIR set, an edit of a kernel module left the cached row assembly calling the
+    old rows (measured: an edit of rows/contact.py had no effect on a step)."""
+    if folder.startswith(_PACKAGE):
+        return glob.glob(os.path.join(folder, "*.nb[ic]"))
+    return [p for sub in _cache_subfolders() for p in glob.glob(os.path.join(folder, sub, "*.nb[ic]"))]
 
 
 def _cache_dirs() -> list:
