@@ -13,6 +13,8 @@ Options, and why:
   the stepper treats it as a failed solve, so no arithmetic error escapes mid-step.
 * no ``fastmath``: NaN and inf must propagate as IEEE says (the solver tests for them) and
   results must not depend on reassociation.
+* ``lean_kernel``: the kernels that allocate nothing are compiled without numba's runtime, so
+  their array views carry no atomic reference counts (see there).
 
 Cache validity. numba keys a cached kernel to the modification time of the file that defines
 it, not to the files of the kernels it calls, so editing one kernel module would leave the
@@ -122,9 +124,16 @@ def lean_kernel(fn):
     without; F and J 6.6 against 4.2 us (the same numbers bit for bit). Without the runtime no
     count is kept. That is safe for a kernel whose views live only while it runs and which
     allocates nothing (numba refuses to compile an allocation here): its callers' arrays hold the
-    memory throughout. A view it returns must only go to another lean kernel (an NRT kernel would
-    release a reference it never took); numba's own sorting and string helpers are compiled the
-    same way (``_nrt=False``)."""
+    memory throughout. Its rules, checked by tests/test_lean_kernels.py:
+    * it returns no view, except to another lean kernel (a kernel with the runtime would release
+      a reference it never took);
+    * it calls only lean kernels: numba compiles a kernel called from a lean one without the
+      runtime too, unless that kernel was compiled already, so an allocation or a StructRef read
+      in the callee fails to compile, or not, by the order in which a process meets them
+      (measured: ncp.dense_newton under a lean dense_request, step_kernels' bundles under a lean
+      kinematics);
+    * it reads no StructRef (bundles.py): their fields need the runtime.
+    numba's own sorting and string helpers are compiled the same way (``_nrt=False``)."""
     return numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)(fn)
 
 
