@@ -180,12 +180,12 @@ def _reduced_pattern(indptr, indices, blk, rpos, cat, dst, bptr, Rptr, Ridx, Cpt
     return nnz
 
 
-@kernel
+@lean_kernel
 def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_ptr, rb_ptr, upd_ptr, upd, D, X,
-             RB, piv, Sdata):
+             RB, piv, Sdata, col, acc):
     """From H's data: S's data (Sdata), each block's LU factors in place of D_b (D, pivots piv),
     X_b = D_b^-1 H_br (X, m x |C_b| each) and H_rb (RB, |R_b| x m each); False if a local block is
-    exactly singular."""
+    exactly singular. col, acc: scratch of the largest block's size and |C_b|."""
     n = indptr.shape[0] - 1
     nb = bptr.shape[0] - 1
     Sdata[:] = 0.0
@@ -205,12 +205,6 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
                 X[x_ptr[blk[i]] + dst[p]] += data[p]
             else:
                 RB[rb_ptr[blk[indices[p]]] + dst[p]] += data[p]
-    big_m, big_c = 1, 1
-    for b in range(nb):
-        big_m = max(big_m, bptr[b + 1] - bptr[b])
-        big_c = max(big_c, Cptr[b + 1] - Cptr[b])
-    col = np.empty(big_m)
-    acc = np.empty(big_c)
     for b in range(nb):
         m = bptr[b + 1] - bptr[b]
         nc = Cptr[b + 1] - Cptr[b]
@@ -248,10 +242,10 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
     return True
 
 
-@kernel
-def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv, y, f_r):
+@lean_kernel
+def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv, y, f_r, col):
     """y_b = D_b^-1 f_b for every block (y over all unknowns, its r entries unused) and
-    f_r = f_r - sum_b H_rb y_b."""
+    f_r = f_r - sum_b H_rb y_b. col: scratch of the largest block's size."""
     n = f.shape[0]
     nb = bptr.shape[0] - 1
     for i in range(n):
@@ -259,7 +253,7 @@ def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv,
             f_r[rpos[i]] = f[i]
     for b in range(nb):
         m = bptr[b + 1] - bptr[b]
-        yb = np.empty(m)
+        yb = col[:m]
         for k in range(m):
             yb[k] = f[bidx[bptr[b] + k]]
         sparse_lu.dense_lu_solve(D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m), piv[bptr[b]:bptr[b + 1]], yb)
@@ -329,6 +323,7 @@ class Structure:
                                  self.Rptr, self.Ridx, self.Cptr, self.Cidx, self.nr, self.Sp, Sj, self.upd_ptr,
                                  self.upd)
         self.Sj = Sj[:s_nnz].copy()
+        self.big_m, self.big_c = max(1, int(m.max(initial=0))), max(1, int(ncol.max(initial=0)))
         self._order = None
 
     def column_order(self):
@@ -379,19 +374,21 @@ class Elimination:
         self.D, self.X = np.zeros(max(int(st.d_ptr[-1]), 1)), np.zeros(max(int(st.x_ptr[-1]), 1))
         self.RB, self.piv = np.zeros(max(int(st.rb_ptr[-1]), 1)), np.zeros(st.n, np.int64)
         self.y, self.f_r = np.zeros(st.n), np.zeros(st.nr)
+        self.col, self.acc = np.zeros(st.big_m), np.zeros(st.big_c)     # _numeric's and _reduce_rhs' scratch
         self.factors = sparse_lu.KeptOrder(st.nr, refill, st.column_order)
 
     def solve(self, data, rhs):
         st = self.structure
         if not _numeric(st.indptr, st.indices, data, st.blk, st.cat, st.dst, st.bptr, st.Rptr, st.Cptr, st.d_ptr,
-                        st.x_ptr, st.rb_ptr, st.upd_ptr, st.upd, self.D, self.X, self.RB, self.piv, self.Sdata):
+                        st.x_ptr, st.rb_ptr, st.upd_ptr, st.upd, self.D, self.X, self.RB, self.piv, self.Sdata,
+                        self.col, self.acc):
             return None
         # S's CSR arrays read as CSC are S^T: factorised as they are, S d = f is the transposed solve
         lu = self.factors.factor(st.Sp, st.Sj, self.Sdata, len(self.Sdata))
         if not lu.ok:
             return None
         _reduce_rhs(np.ascontiguousarray(rhs, dtype=float), st.blk, st.rpos, st.bptr, st.bidx, st.Rptr, st.Ridx,
-                    st.d_ptr, st.rb_ptr, self.D, self.RB, self.piv, self.y, self.f_r)
+                    st.d_ptr, st.rb_ptr, self.D, self.RB, self.piv, self.y, self.f_r, self.col)
         d_r = lu.solve(self.f_r, "T")
         d = np.empty(st.n)
         _back(d_r, self.y, st.blk, st.rpos, st.bptr, st.bidx, st.Cptr, st.Cidx, st.x_ptr, self.X, d)
