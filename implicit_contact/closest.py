@@ -81,7 +81,8 @@ from . import ncp
 from . import shape_kernels as sk
 from ._jit import kernel, lean_kernel
 from .ncp import SolverOptions, Status, solve_mcp
-from .shapes import ConvexFunction, HalfPlane, HalfSpace, Intersection, Union, _nonzero
+from .shapes import (ConvexFunction, HalfPlane, HalfSpace, Intersection, Union, _Ball, _EllipsoidBase,
+                     _HalfSpaceBase, _nonzero, _PowerSumBase)
 
 __all__ = ["closest_points", "ClosestPointResult", "ClosestPointOptions"]
 
@@ -317,19 +318,39 @@ def _check_pose(pose, dim, name):
     if R.shape != (dim, dim) or p.shape != (dim,):
         raise ValueError(f"{name} must be a pair (R ({dim},{dim}), p ({dim},)) for {dim}D shapes, got "
                          f"shapes {R.shape} and {p.shape}")
-    if not (np.isfinite(R).all() and np.isfinite(p).all()):
+    bad = _pose_error(R, p, ROTATION_TOL)
+    if bad == 1:
         raise ValueError(f"{name} must be finite")
-    if np.max(np.abs(R.T @ R - np.eye(dim))) > ROTATION_TOL or _det(R) < 0.0:
+    if bad == 2:
         raise ValueError(f"{name} rotation must be a proper rotation (orthonormal, det +1)")
     return R, p
 
 
-def _det(R: np.ndarray) -> float:
-    r = R.ravel().tolist()
-    if len(r) == 4:
-        return r[0] * r[3] - r[1] * r[2]
-    return (r[0] * (r[4] * r[8] - r[5] * r[7]) - r[1] * (r[3] * r[8] - r[5] * r[6])
-            + r[2] * (r[3] * r[7] - r[4] * r[6]))
+@lean_kernel
+def _pose_error(R, p, tol):
+    """_check_pose's test of a pose of the right shapes: 0 if R is a proper rotation (|R^T R -
+    I|_max <= tol, det > 0) and R and p are finite, 1 if not finite, 2 if not a rotation (one
+    compiled call: the numpy expression cost 25 us of a ~100 us closest_points)."""
+    dim = p.shape[0]
+    for i in range(dim):
+        if not np.isfinite(p[i]):
+            return 1
+        for j in range(dim):
+            if not np.isfinite(R[i, j]):
+                return 1
+    for i in range(dim):
+        for j in range(dim):
+            acc = -1.0 if i == j else 0.0
+            for k in range(dim):
+                acc += R[k, i] * R[k, j]
+            if abs(acc) > tol:
+                return 2
+    if dim == 2:
+        det = R[0, 0] * R[1, 1] - R[0, 1] * R[1, 0]
+    else:
+        det = (R[0, 0] * (R[1, 1] * R[2, 2] - R[1, 2] * R[2, 1]) - R[0, 1] * (R[1, 0] * R[2, 2] - R[1, 2] * R[2, 0])
+               + R[0, 2] * (R[1, 0] * R[2, 1] - R[1, 1] * R[2, 0]))
+    return 2 if det < 0.0 else 0
 
 
 def _check_shape(shape, name):
@@ -451,6 +472,380 @@ def _solve_single(dim, L, par1, b01, B1, R1, par2, b02, B2, R2, N2, c2, x0, lo, 
             info[ncp.I_BAD] = ncp.nonfinite(J)
         else:
             ncp.dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
+
+
+# --------------------------------------------------------------------------------------------
+# two single functions, end to end in one compiled call
+# --------------------------------------------------------------------------------------------
+# The driver's path for two single-function bodies (support-point or ray start, then eqs 15-18)
+# written once more as kernels over the functions' par rows, so that a new pair's static closest
+# points (the stepper's seed of every new pair) cost one call instead of ~60 small numpy calls:
+# measured at 576 us per seed in the 100-superquadric box, 17 % of its steps. The arithmetic is
+# the Python path's, operation for operation, except the order of a few sums (norms and 3x3
+# products: round-off). Whatever this path does not finish (overlap, a failed or spurious KKT
+# solve, a shape without a closed-form support) returns FAST_FALLBACK and the Python driver
+# solves the pair from the start, so the two can differ only by round-off.
+FAST_OK, FAST_FALLBACK = 0, 1
+_FAST_CODES = (sk.BALL, sk.ELLIPSOID, sk.POWER, sk.BARR, sk.PLANE)
+_RAY_NEWTON_ITERATIONS = 100       # shapes.RAY_NEWTON_ITERATIONS
+_MACHINE_EPS = float(np.finfo(float).eps)
+
+
+@lean_kernel
+def _pnorm(v, n, p):
+    """shapes._pnorm of v[:n]: ||v||_p scaled by the largest entry."""
+    m = 0.0
+    for i in range(n):
+        m = max(m, abs(v[i]))
+    if not m > 0.0:
+        return m
+    acc = 0.0
+    for i in range(n):
+        acc += (abs(v[i]) / m) ** p
+    return m * acc ** (1.0 / p)
+
+
+@lean_kernel
+def _lp_support(D, n, p, out):
+    """shapes._lp_support of D[:n] into out[:n]: argmax {D.X : ||X||_p <= 1}."""
+    ps = p / (p - 1.0)
+    N = _pnorm(D, n, ps)
+    for i in range(n):
+        s = 1.0 if D[i] > 0.0 else (-1.0 if D[i] < 0.0 else 0.0)
+        out[i] = s * (abs(D[i]) / N) ** (ps - 1.0)
+
+
+@lean_kernel
+def _local_support(par, d, xl, t2, u2):
+    """The shapes' _local_support of the local direction d (dim entries) into xl: a ball, an
+    ellipsoid, a superquadric (both of Barr's levels). t2, u2: (2,) scratch."""
+    code = int(par[sk.CODE])
+    dim = int(par[sk.DIM])
+    if code == sk.BALL:
+        nn = 0.0
+        for i in range(dim):
+            nn += d[i] * d[i]
+        nn = math.sqrt(nn)
+        for i in range(dim):
+            xl[i] = par[sk.RADIUS] * d[i] / nn
+        return
+    for i in range(dim):
+        xl[i] = par[sk.AX + i] * d[i]            # D = a d
+    if code == sk.ELLIPSOID:
+        nn = 0.0
+        for i in range(dim):
+            nn += xl[i] * xl[i]
+        nn = math.sqrt(nn)
+        for i in range(dim):
+            xl[i] = par[sk.AX + i] * xl[i] / nn
+        return
+    if code == sk.POWER:
+        _lp_support(xl, dim, par[sk.N1], xl)
+        for i in range(dim):
+            xl[i] *= par[sk.AX + i]
+        return
+    # BARR (3D): the xy level inside the z level
+    n1, n2 = par[sk.N1], par[sk.N2]
+    D2 = xl[2]
+    nxy = _pnorm(xl, 2, n2 / (n2 - 1.0))
+    t2[0], t2[1] = nxy, D2
+    _lp_support(t2, 2, n1, t2)
+    if nxy > 0.0:
+        u2[0], u2[1] = xl[0], xl[1]
+        _lp_support(u2, 2, n2, u2)
+        xl[0], xl[1] = t2[0] * u2[0], t2[0] * u2[1]
+    else:
+        xl[0] = xl[1] = 0.0
+    xl[2] = t2[1]
+    for i in range(3):
+        xl[i] *= par[sk.AX + i]
+
+
+@lean_kernel
+def _support(par, R, p, o, L, dirw, out, w):
+    """_Body.support: the scaled world support point of a bounded function along the world
+    direction dirw (dim,), into out. w: (5, 3) scratch."""
+    dim = int(par[sk.DIM])
+    db, dl, xl = w[0], w[1], w[2]
+    for i in range(dim):                         # body frame R^T d, then local R0^T (R^T d)
+        acc = 0.0
+        for k in range(dim):
+            acc += R[k, i] * dirw[k]
+        db[i] = acc
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += db[k] * par[sk.R0 + 3 * k + i]
+        dl[i] = acc
+    _local_support(par, dl, xl, w[3], w[4])
+    for i in range(dim):                         # body point c0 + R0 xl
+        acc = 0.0
+        for k in range(dim):
+            acc += par[sk.R0 + 3 * i + k] * xl[k]
+        db[i] = par[sk.C0 + i] + acc
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += R[i, k] * db[k]
+        out[i] = (acc + p[i] - o[i]) / L
+
+
+@lean_kernel
+def _local_value(par, Xs, order, xb, gb, Hb):
+    """f at the local point Xs (already times the semi-axes): evaluate at c0 + R0 Xs."""
+    dim = int(par[sk.DIM])
+    for i in range(3):
+        xb[i] = 0.0
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += par[sk.R0 + 3 * i + k] * Xs[k]
+        xb[i] = par[sk.C0 + i] + acc
+    return sk.evaluate(par, xb, gb, Hb, order)
+
+
+@lean_kernel
+def _ray_exit(par, ob, ub, w, Hb):
+    """shapes' _ray_exit of a bounded function from the body point ob along ub (both dim):
+    the quadrics' closed form, Newton from the right for the power sums. w: (6, 3) scratch."""
+    code = int(par[sk.CODE])
+    dim = int(par[sk.DIM])
+    P, U, X, xb, gb = w[0], w[1], w[2], w[3], w[4]
+    for i in range(dim):                         # local: (o - c0) R0, u R0
+        acc = 0.0
+        accu = 0.0
+        for k in range(dim):
+            acc += (ob[k] - par[sk.C0 + k]) * par[sk.R0 + 3 * k + i]
+            accu += ub[k] * par[sk.R0 + 3 * k + i]
+        P[i] = acc
+        U[i] = accu
+    for i in range(dim):
+        s = par[sk.RADIUS] if code == sk.BALL else par[sk.AX + i]
+        P[i] /= s
+        U[i] /= s
+    if code == sk.BALL or code == sk.ELLIPSOID:  # shapes._quadric_exit
+        uu = 0.0
+        pu = 0.0
+        pp = 0.0
+        for i in range(dim):
+            uu += U[i] * U[i]
+            pu += P[i] * U[i]
+            pp += P[i] * P[i]
+        if pp >= 1.0:
+            return 0.0
+        sq = math.sqrt(pu * pu + uu * (1.0 - pp))
+        return (1.0 - pp) / (pu + sq) if pu >= 0.0 else (sq - pu) / uu
+    q = par[sk.N1]
+    s = par[sk.S]
+    anyp = False
+    for i in range(dim):
+        anyp = anyp or P[i] != 0.0
+    if not anyp:                                 # g(tau U) = tau^n1 g(U)
+        for i in range(dim):
+            X[i] = U[i] * par[sk.AX + i]
+        return (_local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0) ** (-1.0 / q)
+    for i in range(dim):
+        X[i] = P[i] * par[sk.AX + i]
+    if _local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0 >= 1.0:
+        return 0.0
+    nP = 0.0
+    nU = 0.0
+    for i in range(dim):
+        nP += P[i] * P[i]
+        nU += U[i] * U[i]
+    tau = (math.sqrt(nP) + math.sqrt(dim)) / math.sqrt(nU)
+    for _ in range(_RAY_NEWTON_ITERATIONS):      # shapes._newton_from_right
+        for i in range(dim):
+            X[i] = (P[i] + tau * U[i]) * par[sk.AX + i]
+        value = _local_value(par, X, 1, xb, gb, Hb)
+        slope = 0.0
+        for i in range(dim):
+            gl = 0.0
+            for k in range(dim):
+                gl += gb[k] * par[sk.R0 + 3 * k + i]
+            slope += gl * (U[i] * par[sk.AX + i])
+        v = (value * q / s + 1.0) - 1.0          # (g - 1, as shapes' phi computes it)
+        dv = slope * q / s
+        if not dv > 0.0:
+            break
+        step = v / dv
+        tau_new = tau - step
+        if tau_new >= tau or step <= 4.0 * _MACHINE_EPS * tau:
+            tau = min(tau, tau_new) if tau_new > 0.0 else tau
+            break
+        tau = tau_new
+    return tau
+
+
+@lean_kernel
+def _scaled_value(par, b0, B, y, xb, gb, Hb):
+    """_Body.values of a single function at the scaled point y: f(b0 + B y) / L (B = L R^T)."""
+    dim = int(par[sk.DIM])
+    for i in range(3):
+        xb[i] = 0.0
+    for i in range(dim):
+        acc = b0[i]
+        for k in range(dim):
+            acc += B[i, k] * y[k]
+        xb[i] = acc
+    return sk.evaluate(par, xb, gb, Hb, 0)
+
+
+@kernel
+def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2, tol, x0, lo, hi, opt, x, F,
+                xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, out):
+    """_Solver.run for two single functions (body 1 or 2 may be a half-space): the start from
+    support points (a half-space: the other's support along its normal) or ray exits, eqs
+    (15)-(18) by _solve_single, the spurious-root check and the normal. Writes out = [a1 (3),
+    a2 (3), normal (3), l1, l2] (world, a1 and a2 unscaled) and the solve into the ncp buffers;
+    returns FAST_OK, or FAST_FALLBACK for what the Python driver must do (an overlap, the depth
+    problem, a failed solve), having changed nothing else."""
+    w = np.zeros((6, 3))
+    xb, gb, Hb = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+    a1, a2, dd, n = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    plane1 = int(par1[sk.CODE]) == sk.PLANE
+    plane2 = int(par2[sk.CODE]) == sk.PLANE
+    started = False
+    # -- supports(): a half-space first (body 1, then body 2) --------------------------------
+    for which in range(2):
+        is_plane = plane1 if which == 0 else plane2
+        if not is_plane:
+            continue
+        Pp, PR, Qp, QR, Qpos = (par1, R1, par2, R2, p2) if which == 0 else (par2, R2, par1, R1, p1)
+        for i in range(dim):                     # world normal R n_b, scaled offset
+            acc = 0.0
+            for k in range(dim):
+                acc += PR[i, k] * Pp[sk.NORMAL + k]
+            n[i] = acc
+        Ppos = p1 if which == 0 else p2
+        npp = 0.0
+        npo = 0.0
+        for i in range(dim):
+            npp += n[i] * Ppos[i]
+            npo += n[i] * o[i]
+        offset = (Pp[sk.OFFSET] + npp - npo) / L
+        for i in range(dim):
+            dd[i] = -n[i]
+        aQ = a2 if which == 0 else a1
+        aP = a1 if which == 0 else a2
+        _support(Qp, QR, Qpos, o, L, dd, aQ, w)
+        gap = -offset
+        for i in range(dim):
+            gap += n[i] * aQ[i]
+        if gap < -tol:
+            return FAST_FALLBACK                 # the other body's deepest point is below the plane
+        for i in range(dim):
+            aP[i] = aQ[i] - gap * n[i]
+        started = True
+        break
+    if not started:
+        # -- supports(): fixed-point steps d <- s2(-d) - s1(d) -----------------------------
+        anyd = False
+        for i in range(dim):
+            dd[i] = c2[i] - c1[i]
+            anyd = anyd or dd[i] != 0.0
+        if anyd:
+            started = True
+            for _ in range(SUPPORT_STEPS):
+                _support(par1, R1, p1, o, L, dd, a1, w)
+                for i in range(dim):
+                    n[i] = -dd[i]
+                _support(par2, R2, p2, o, L, n, a2, w)
+                along = 0.0
+                ss = 0.0
+                d2 = 0.0
+                for i in range(dim):
+                    sep = a2[i] - a1[i]
+                    along += sep * dd[i]
+                    ss += sep * sep
+                    d2 += dd[i] * dd[i]
+                if along <= 0.0:
+                    started = False              # d does not separate: the rays decide
+                    break
+                if along * along >= (1.0 - 1e-15) * ss * d2:
+                    break
+                for i in range(dim):
+                    dd[i] = a2[i] - a1[i]
+        if not started:
+            # -- rays(c2, c1): exits of the segment between the interior points -----------
+            if _scaled_value(par2, b02, B2, c1, xb, gb, Hb) / L < 0.0 or \
+                    _scaled_value(par1, b01, B1, c2, xb, gb, Hb) / L < 0.0:
+                return FAST_FALLBACK
+            ob, ub = w[5], dd
+            s12 = np.zeros(2)
+            for which in range(2):
+                pa, b0, B, oi, ti = (par1, b01, B1, c1, c2) if which == 0 else (par2, b02, B2, c2, c1)
+                for i in range(dim):
+                    acc = b0[i]
+                    accu = 0.0
+                    for k in range(dim):
+                        acc += B[i, k] * oi[k]
+                        accu += B[i, k] * (ti[k] - oi[k])
+                    ob[i] = acc
+                    ub[i] = accu
+                anyu = False
+                for i in range(dim):
+                    anyu = anyu or ub[i] != 0.0
+                if not anyu:
+                    return FAST_FALLBACK
+                s12[which] = _ray_exit(pa, ob, ub, w, Hb)
+            s1, s2 = s12[0], s12[1]
+            if s1 + s2 > 1.0 + tol:
+                return FAST_FALLBACK             # the rays share a stretch: overlapping
+            for i in range(dim):
+                a1[i] = c1[i] + min(s1, 1.0) * (c2[i] - c1[i])
+                a2[i] = c2[i] + min(s2, 1.0) * (c1[i] - c2[i])
+    # -- kkt(): eqs (15)-(18) from the start -------------------------------------------------
+    G1, G2 = w[0], w[1]
+    v1 = _body_eval(a1, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
+    v2 = _body_eval(a2, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, G2, Hb, 1)
+    gg = 0.0
+    gd = 0.0
+    cc = 0.0
+    cr = 0.0
+    for i in range(dim):
+        gg += G1[i] * G1[i]
+        gd += G1[i] * (a2[i] - a1[i])
+        cc += G2[i] * G2[i]
+        cr += G2[i] * -G1[i]
+    lk = max(gd, 0.0) / gg if gg > 0.0 else 0.0
+    l2 = max(cr / cc, 0.0) if cc > 0.0 else 0.0   # _start_multipliers of one function
+    if not l2 > 0.0:
+        l2 = math.sqrt(gg) / max(math.sqrt(cc), 1e-300)
+    for i in range(dim):
+        x0[i] = a1[i]
+        x0[dim + i] = a2[i]
+    x0[2 * dim] = lk
+    x0[2 * dim + 1] = l2
+    for i in range(2 * dim + 2):
+        if not np.isfinite(x0[i]):
+            return FAST_FALLBACK
+    _solve_single(dim, L, par1, b01, B1, R1, par2, b02, B2, R2, _NO_PLANES, _NO_OFFSETS, x0, lo, hi, opt, x, F,
+                  xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H)
+    if info[ncp.I_STATUS] != ncp.S_CONVERGED:
+        return FAST_FALLBACK
+    dist2 = 0.0
+    for i in range(dim):
+        dist2 += (x[i] - x[dim + i]) ** 2
+    if math.sqrt(dist2) <= tol and -_scaled_value(par1, b01, B1, x, xb, gb, Hb) / L > tol:
+        return FAST_FALLBACK                     # a spurious root inside body 1: overlapping
+    # -- result(): world points, multipliers, the normal from body 1's gradient ------------------
+    _body_eval(x, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
+    nn = 0.0
+    for i in range(dim):
+        nn += G1[i] * G1[i]
+    if not nn > 0.0:
+        return FAST_FALLBACK
+    nn = math.sqrt(nn)
+    for i in range(3):
+        out[i] = out[3 + i] = out[6 + i] = 0.0
+    for i in range(dim):
+        out[i] = o[i] + L * x[i]
+        out[3 + i] = o[i] + L * x[dim + i]
+        out[6 + i] = G1[i] / nn
+    out[9] = x[2 * dim] * L
+    out[10] = x[2 * dim + 1]
+    return FAST_OK
 
 
 def _scaled_form(B1: _Body, B2: _Body, k1: int):
@@ -783,8 +1178,49 @@ def closest_points(shape1, pose1, shape2, pose2, options: ClosestPointOptions | 
     c2 = R2 @ shape2.interior_point + p2
     L = min(s for s in (shape1.length_scale, shape2.length_scale) if math.isfinite(s))
     o = 0.5 * (c1 + c2) if shape1.bounded and shape2.bounded else (c1 if shape1.bounded else c2)
+    fast = _single_functions(shape1, R1, p1, shape2, R2, p2, c1, c2, o, L, options)
+    if fast is not None:
+        return fast
     B1, B2 = _Body(shape1, R1, p1, o, L), _Body(shape2, R2, p2, o, L)
     return _Solver(B1, B2, B1.scaled(c1), B2.scaled(c2), options).run()
+
+
+# the single functions _single_run knows: their closed-form supports and ray exits are its own
+_FAST_CLASSES = (_Ball, _EllipsoidBase, _PowerSumBase, _HalfSpaceBase)
+_FAST_BUFFERS = {}
+
+
+def _single_functions(shape1, R1, p1, shape2, R2, p2, c1, c2, o, L, options):
+    """closest_points of two single functions (balls, ellipsoids, superquadrics, half-spaces)
+    by _single_run, or None where the Python driver must solve the pair (see _single_run)."""
+    f1, f2 = shape1.functions, shape2.functions
+    if len(f1) != 1 or len(f2) != 1 or not (isinstance(f1[0], _FAST_CLASSES) and isinstance(f2[0], _FAST_CLASSES)):
+        return None
+    dim = shape1.dim
+    opts = options.solver
+    key = (dim, id(opts))
+    held = _FAST_BUFFERS.get(key)
+    if held is None or held[-1] is not opts:
+        if len(_FAST_BUFFERS) > 16:
+            _FAST_BUFFERS.clear()
+        n = 2 * dim + 2
+        held = _FAST_BUFFERS[key] = ncp.dense_buffers(n, opts) + _point_bounds(dim, 1, 1) + (np.empty(n), np.empty(11),
+                                                                                           opts)
+    buf, J, H, opt, lo, hi, x0, out, _ = held
+    c = np.ascontiguousarray
+    status = _single_run(dim, float(L), o, f1[0].kernel_params, c(R1), p1, R1.T @ (o - p1), c(L * R1.T),
+                         f2[0].kernel_params, c(R2), p2, R2.T @ (o - p2), c(L * R2.T), (c1 - o) / L, (c2 - o) / L,
+                         float(options.touch_tol), x0, lo, hi, opt, buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit,
+                         buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz, buf.history, buf.steps, buf.info, buf.fbuf,
+                         buf.work, J, H, out)
+    if status != FAST_OK:
+        return None
+    status, iterations, residual, message = ncp.outcome_from_buffers(buf, opts)
+    a1, a2 = out[:dim].copy(), out[3:3 + dim].copy()
+    return ClosestPointResult(
+        a1=a1, a2=a2, l1=out[9:10].copy(), l2=out[10:11].copy(), k1=0, distance=float(np.linalg.norm(a1 - a2)),
+        normal=out[6:6 + dim].copy(), overlapping=False, depth=0.0, success=True, status=status,
+        iterations=iterations, residual=residual, message=message, form="eq15-18")
 
 
 # the arguments _solve_single does not read for the other kind of body 2 (typed as those it does)

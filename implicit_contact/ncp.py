@@ -785,6 +785,17 @@ _STATUS = {S_CONVERGED: Status.CONVERGED, S_MAX_ITERATIONS: Status.MAX_ITERATION
 
 def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
     """The McpResult (with its one-sentence message) of a finished mcp_iterations."""
+    status, iterations, residual, message = outcome_from_buffers(buf, options)
+    info = buf.info
+    history = tuple(buf.history[: iterations + 1].tolist())
+    steps = "".join([_STEP_LETTERS[k] for k in buf.steps[:iterations].tolist()])
+    return McpResult(buf.x.copy(), buf.F.copy(), status, iterations, residual, history, message, steps,
+                     int(info[I_NFEV]), int(info[I_NJEV]))
+
+
+def outcome_from_buffers(buf: Buffers, options: SolverOptions) -> tuple:
+    """(status, iterations, residual, message) of a finished mcp_iterations: what a caller that
+    reads its solution from the buffers needs of McpResult (closest._single_functions)."""
     info = buf.info
     status = _STATUS[int(info[I_STATUS])]
     iterations = int(info[I_ITER])
@@ -813,10 +824,7 @@ def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
                  "no Newton, Levenberg-Marquardt or gradient step decreases the merit (a stationary point "
                  "of the merit that is not a solution)")
         message = f"Stopped after {iterations} iterations: {cause}; natural residual {residual:.3g}."
-    history = tuple(buf.history[: iterations + 1].tolist())
-    steps = "".join([_STEP_LETTERS[k] for k in buf.steps[:iterations].tolist()])
-    return McpResult(buf.x.copy(), buf.F.copy(), status, iterations, residual, history, message, steps,
-                     int(info[I_NFEV]), int(info[I_NJEV]))
+    return status, iterations, residual, message
 
 
 def _as_bound(value, n, name):

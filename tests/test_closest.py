@@ -572,9 +572,9 @@ SINGLE_PAIRS = [
 
 @pytest.mark.parametrize("name, first, second, offset", SINGLE_PAIRS, ids=[p[0] for p in SINGLE_PAIRS])
 def test_compiled_single_function_solve_matches_the_python_rows(name, first, second, offset, monkeypatch):
-    """closest._Solver.solve_single (eqs 15-18 of two single-function bodies in one compiled call)
-    against the same solve on _scaled_form's Python rows: the same points, multipliers and
-    iterations to round-off."""
+    """closest._single_run (the driver's path for two single-function bodies: start, eqs 15-18
+    and the normal, in one compiled call) against the Python driver solving the same eqs on
+    _scaled_form's Python rows: the same points, multipliers and iterations to round-off."""
     from implicit_contact import closest as cl
     dim = first.dim
     if dim == 3:
@@ -583,13 +583,15 @@ def test_compiled_single_function_solve_matches_the_python_rows(name, first, sec
         R1, R2 = (np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]]) for t in (0.3, -0.7))
     pose1, pose2 = (R1, np.zeros(dim)), (R2, offset)
     calls = []
-    compiled = cl._Solver.solve_single
+    compiled = cl._single_functions
 
-    def counted(self, z0, lo, hi):
-        calls.append(1)
-        return compiled(self, z0, lo, hi)
+    def counted(*args):
+        out = compiled(*args)
+        if out is not None:
+            calls.append(1)
+        return out
 
-    monkeypatch.setattr(cl._Solver, "solve_single", counted)
+    monkeypatch.setattr(cl, "_single_functions", counted)
     fast = cl.closest_points(first, pose1, second, pose2)
     assert calls, "the compiled path was not taken"
 
@@ -597,6 +599,7 @@ def test_compiled_single_function_solve_matches_the_python_rows(name, first, sec
         fun, jac, _, _ = cl._scaled_form(self.B1, self.B2, 0)
         return self.solve(fun, jac, z0, lo, hi)
 
+    monkeypatch.setattr(cl, "_single_functions", lambda *args: None)
     monkeypatch.setattr(cl._Solver, "solve_single", python_rows)
     slow = cl.closest_points(first, pose1, second, pose2)
     assert fast.success and slow.success and fast.status == slow.status

@@ -54,11 +54,11 @@ def test_ten_bodies_dropped_into_a_box_get_through_the_first_wall_contacts():
     assert time.perf_counter() - start < 60.0      # a stalled solve takes minutes
 
 
-def _ten_bodies(steps, watch, monkeypatch, warm_watch=0):
-    """comparisons.stability's 10 bodies for `steps` steps with recovery.SLIDING_WATCH = watch and
-    recovery.WARM_WATCH = warm_watch: (Newton iterations spent over all solves, every skeleton's
-    end positions, solves ended early by the watch under test: the re-solves after friction rows
-    if warm_watch is 0, else the first solves)."""
+def _ten_bodies(steps, watch, monkeypatch, warm_watch=0, seed=0):
+    """comparisons.stability's 10 bodies (initial rotations drawn with seed) for `steps` steps with
+    recovery.SLIDING_WATCH = watch and recovery.WARM_WATCH = warm_watch: (Newton iterations spent
+    over all solves, every skeleton's end positions, solves ended early by the watch under test:
+    the re-solves after friction rows if warm_watch is 0, else the first solves)."""
     from comparisons.stability import IMPLICIT, many_bodies_world
     from implicit_contact import recovery
 
@@ -76,7 +76,7 @@ def _ten_bodies(steps, watch, monkeypatch, warm_watch=0):
         return result
 
     monkeypatch.setattr(recovery, "watched_solve", counting)
-    world = many_bodies_world(10, 0.01, IMPLICIT)
+    world = many_bodies_world(10, 0.01, IMPLICIT, seed=seed)
     stepper = ic.ImplicitContactStepper(world)
     spent = sum(stepper.step().spent for _ in range(steps))
     q = np.concatenate([np.asarray(world.getSkeleton(i).getPositions()) for i in range(world.getNumSkeletons())])
@@ -87,19 +87,23 @@ SAME_END = 1e-9      # [m, rad] the same MCP answers, reached along other solves
 
 
 def test_watched_resolve_hands_a_stalled_sticking_start_to_restart_sliding_sooner(monkeypatch):
-    """recovery.watched_solve. In the 10 bodies' first 0.4 s, re-solves after friction rows were
-    added (started sticking) stall in the FB valley until restart_sliding starts them sliding.
-    Watched after 15 iterations they end there: the same trajectory (restart_sliding then finds the
-    same answers) for fewer Newton iterations (856 against 874); without the watch (0) none ends
-    early. The gain is small and not monotone in time: at 0.2 s the totals are 487 against 478
+    """recovery.watched_solve. In the first 0.4 s of the 10 bodies dropped with seed 4, re-solves
+    after friction rows were added (started sticking) stall in the FB valley until restart_sliding
+    starts them sliding. Watched after 15 iterations three end there: the same trajectory
+    (restart_sliding then finds the same answers) for fewer Newton iterations (1028 against 1645,
+    measured at the commit that compiled closest._single_run); without the watch (0) none ends
+    early. Until then the guard was seed 0's run, below; with the static closest points of new
+    pairs compiled (the same seeds to round-off, another path of a chaotic scene) seed 0 meets no
+    such stall in 100 steps (seeds 1, 2, 3, 5, 6 none in 40). On seed 0, before: 856 against 874
+    at 0.4 s. The gain is small and not monotone in time: at 0.2 s the totals were 487 against 478
     (the last step's watched re-solve would have converged at 22 iterations; stopped at 15, its
     restart costs 143 against 91). Before the sparse Levenberg-Marquardt step was given H itself
     (ncp._SparsePattern scrambled it from ea35695 to d609407), the 0.2 s totals were 401 against 443.
     Measured with the first solve unwatched (recovery.WARM_WATCH = 0, as here): at 0.4 s 720
     against 735 since 6db71ce; with the first solve watched (the default since then) 573 against
     569: on this scene the warm watch ends those stalls sooner (the next test)."""
-    spent_off, q_off, ended_off = _ten_bodies(40, 0, monkeypatch)
-    spent_on, q_on, ended_on = _ten_bodies(40, 15, monkeypatch)
+    spent_off, q_off, ended_off = _ten_bodies(40, 0, monkeypatch, seed=4)
+    spent_on, q_on, ended_on = _ten_bodies(40, 15, monkeypatch, seed=4)
     assert ended_off == 0 and ended_on >= 1
     assert np.max(np.abs(q_on - q_off)) <= SAME_END
     assert spent_on < spent_off
