@@ -691,20 +691,173 @@ def _scaled_value(par, b0, B, y, xb, gb, Hb):
     return sk.evaluate(par, xb, gb, Hb, 0)
 
 
+@lean_kernel
+def _polytope_support(V, R, p, o, L, dirw, out, w):
+    """_Body.support of a bounded polytope with body-frame vertices V: the first vertex of
+    largest V (R^T dirw), scaled world, into out. w: (5, 3) scratch."""
+    dim = V.shape[1]
+    db = w[0]
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += R[k, i] * dirw[k]
+        db[i] = acc
+    best = 0
+    top = -np.inf
+    for j in range(V.shape[0]):
+        acc = 0.0
+        for i in range(dim):
+            acc += V[j, i] * db[i]
+        if acc > top:
+            best, top = j, acc
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += R[i, k] * V[best, k]
+        out[i] = (acc + p[i] - o[i]) / L
+
+
 @kernel
-def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2, tol, x0, lo, hi, opt, x, F,
-                xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, out):
-    """_Solver.run for two single functions (body 1 or 2 may be a half-space): the start from
-    support points (a half-space: the other's support along its normal) or ray exits, eqs
-    (15)-(18) by _solve_single, the spurious-root check and the normal. Writes out = [a1 (3),
-    a2 (3), normal (3), l1, l2] (world, a1 and a2 unscaled) and the solve into the ncp buffers;
-    returns FAST_OK, or FAST_FALLBACK for what the Python driver must do (an overlap, the depth
-    problem, a failed solve), having changed nothing else."""
+def _nnls(A, b, x):
+    """Non-negative least squares min |A x - b|, x >= 0 (Lawson and Hanson's active set method, as
+    scipy.optimize.nnls) for the few columns of a start's multipliers (_start_multipliers); x is
+    written. The least-squares subproblems by the normal equations (at most dim x dim here)."""
+    m, n = A.shape
+    for j in range(n):
+        x[j] = 0.0
+    if n == 0:
+        return
+    scale = 0.0
+    for j in range(n):
+        colsum = 0.0
+        for i in range(m):
+            colsum += abs(A[i, j])
+        scale = max(scale, colsum)
+    tol = 10.0 * max(m, n) * _MACHINE_EPS * scale
+    passive = np.zeros(n, np.bool_)
+    z = np.zeros(n)
+    w = np.zeros(n)
+    r = np.zeros(m)
+    G = np.zeros((n, n))
+    rhs = np.zeros(n)
+    idx = np.zeros(n, np.int64)
+    for _ in range(3 * n):
+        for i in range(m):
+            acc = b[i]
+            for j in range(n):
+                acc -= A[i, j] * x[j]
+            r[i] = acc
+        enter = -1
+        top = tol
+        for j in range(n):
+            if not passive[j]:
+                acc = 0.0
+                for i in range(m):
+                    acc += A[i, j] * r[i]
+                if acc > top:
+                    enter, top = j, acc
+        if enter < 0:
+            return
+        passive[enter] = True
+        for _inner in range(3 * n):
+            # least squares on the passive columns: (A_P^T A_P) z_P = A_P^T b, Gaussian elimination
+            k = 0
+            for j in range(n):
+                if passive[j]:
+                    idx[k] = j
+                    k += 1
+            for a in range(k):
+                ja = idx[a]
+                acc = 0.0
+                for i in range(m):
+                    acc += A[i, ja] * b[i]
+                rhs[a] = acc
+                for c in range(k):
+                    jc = idx[c]
+                    acc = 0.0
+                    for i in range(m):
+                        acc += A[i, ja] * A[i, jc]
+                    G[a, c] = acc
+            singular = False
+            for c in range(k):
+                piv = c
+                for a in range(c + 1, k):
+                    if abs(G[a, c]) > abs(G[piv, c]):
+                        piv = a
+                if not abs(G[piv, c]) > tol * tol:
+                    singular = True
+                    break
+                if piv != c:
+                    for e in range(k):
+                        G[c, e], G[piv, e] = G[piv, e], G[c, e]
+                    rhs[c], rhs[piv] = rhs[piv], rhs[c]
+                for a in range(c + 1, k):
+                    f = G[a, c] / G[c, c]
+                    for e in range(c, k):
+                        G[a, e] -= f * G[c, e]
+                    rhs[a] -= f * rhs[c]
+            if singular:                    # the entering column depends on the others: stop here
+                passive[enter] = False
+                return
+            for c in range(k - 1, -1, -1):
+                acc = rhs[c]
+                for e in range(c + 1, k):
+                    acc -= G[c, e] * z[idx[e]]
+                z[idx[c]] = acc / G[c, c]
+            for j in range(n):
+                if not passive[j]:
+                    z[j] = 0.0
+            feasible = True
+            for a in range(k):
+                if not z[idx[a]] > 0.0:
+                    feasible = False
+            if feasible:
+                for j in range(n):
+                    x[j] = z[j]
+                break
+            alpha = np.inf
+            for a in range(k):
+                j = idx[a]
+                if not z[j] > 0.0:
+                    alpha = min(alpha, x[j] / (x[j] - z[j]))
+            for j in range(n):
+                x[j] += alpha * (z[j] - x[j])
+                if passive[j] and not x[j] > tol:
+                    passive[j] = False
+                    x[j] = 0.0
+
+
+@kernel
+def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2b, V2b, c1, c2, tol, x0, lo, hi,
+                opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, out):
+    """_Solver.run for a single-function body 1 and, as body 2, a single function (par2; either
+    may be a half-space) or, if N2b has rows, the bounded polytope of the body-frame planes
+    N2b x <= d2b with vertices V2b (body 1 then not a half-space): the start from support points
+    (a half-space: the other's support along its normal; against a polytope also the ray exits,
+    the closer pair kept) or ray exits, eqs (15)-(18) by _solve_single (body 2's multipliers
+    started by NNLS over its near-active planes), the spurious-root check and the normal. Writes
+    out = [a1 (3), a2 (3), normal (3), l1, l2 (m2)] (world, a1 and a2 unscaled) and the solve into
+    the ncp buffers; returns FAST_OK, or FAST_FALLBACK for what the Python driver must do (an
+    overlap, the depth problem, a failed solve), having changed nothing else."""
     w = np.zeros((6, 3))
     xb, gb, Hb = np.zeros(3), np.zeros(3), np.zeros((3, 3))
     a1, a2, dd, n = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    poly2 = N2b.shape[0] > 0
+    m2 = N2b.shape[0] if poly2 else 1
     plane1 = int(par1[sk.CODE]) == sk.PLANE
-    plane2 = int(par2[sk.CODE]) == sk.PLANE
+    plane2 = (not poly2) and int(par2[sk.CODE]) == sk.PLANE
+    # body 2's scaled world planes N2 y <= c2 (_Body.linear_rows)
+    N2 = np.zeros((N2b.shape[0], dim))
+    cl2 = np.zeros(N2b.shape[0])
+    for j in range(N2b.shape[0]):
+        acc2 = 0.0
+        for i in range(dim):
+            acc = 0.0
+            for k in range(dim):
+                acc += R2[i, k] * N2b[j, k]
+            N2[j, i] = acc
+            acc2 += acc * (p2[i] - o[i])
+        cl2[j] = (d2b[j] + acc2) / L
     started = False
     # -- supports(): a half-space first (body 1, then body 2) --------------------------------
     for which in range(2):
@@ -739,7 +892,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2,
         started = True
         break
     if not started:
-        # -- supports(): fixed-point steps d <- s2(-d) - s1(d) -----------------------------
+        # -- supports(): fixed-point steps d <- s2(-d) - s1(d) ---------------------------------
         anyd = False
         for i in range(dim):
             dd[i] = c2[i] - c1[i]
@@ -750,7 +903,10 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2,
                 _support(par1, R1, p1, o, L, dd, a1, w)
                 for i in range(dim):
                     n[i] = -dd[i]
-                _support(par2, R2, p2, o, L, n, a2, w)
+                if poly2:
+                    _polytope_support(V2b, R2, p2, o, L, n, a2, w)
+                else:
+                    _support(par2, R2, p2, o, L, n, a2, w)
                 along = 0.0
                 ss = 0.0
                 d2 = 0.0
@@ -766,15 +922,27 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2,
                     break
                 for i in range(dim):
                     dd[i] = a2[i] - a1[i]
-        if not started:
-            # -- rays(c2, c1): exits of the segment between the interior points -----------
-            if _scaled_value(par2, b02, B2, c1, xb, gb, Hb) / L < 0.0 or \
-                    _scaled_value(par1, b01, B1, c2, xb, gb, Hb) / L < 0.0:
+        if poly2 or not started:
+            # -- rays(c2, c1): exits of the segment between the interior points -----------------
+            # (against a polytope also after support points, which are vertices: a poor start
+            # for a face contact; the closer of the two pairs is kept)
+            inside2 = False
+            if poly2:
+                top = -np.inf
+                for j in range(m2):
+                    acc = 0.0
+                    for i in range(dim):
+                        acc += N2[j, i] * c1[i]
+                    top = max(top, acc - cl2[j])
+                inside2 = top < 0.0
+            else:
+                inside2 = _scaled_value(par2, b02, B2, c1, xb, gb, Hb) / L < 0.0
+            if inside2 or _scaled_value(par1, b01, B1, c2, xb, gb, Hb) / L < 0.0:
                 return FAST_FALLBACK
-            ob, ub = w[5], dd
+            ob, ub = w[5], np.zeros(3)
             s12 = np.zeros(2)
             for which in range(2):
-                pa, b0, B, oi, ti = (par1, b01, B1, c1, c2) if which == 0 else (par2, b02, B2, c2, c1)
+                b0, B, oi, ti = (b01, B1, c1, c2) if which == 0 else (b02, B2, c2, c1)
                 for i in range(dim):
                     acc = b0[i]
                     accu = 0.0
@@ -788,39 +956,107 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2,
                     anyu = anyu or ub[i] != 0.0
                 if not anyu:
                     return FAST_FALLBACK
-                s12[which] = _ray_exit(pa, ob, ub, w, Hb)
+                if which == 1 and poly2:         # min over the half-spaces' exits
+                    s = np.inf
+                    for j in range(m2):
+                        nu = 0.0
+                        no = 0.0
+                        for i in range(dim):
+                            nu += N2b[j, i] * ub[i]
+                            no += N2b[j, i] * ob[i]
+                        gap = d2b[j] - no
+                        e = 0.0 if gap <= 0.0 else (gap / nu if nu > 0.0 else np.inf)
+                        s = min(s, e)
+                    s12[1] = s
+                else:
+                    s12[which] = _ray_exit(par1 if which == 0 else par2, ob, ub, w, Hb)
             s1, s2 = s12[0], s12[1]
             if s1 + s2 > 1.0 + tol:
                 return FAST_FALLBACK             # the rays share a stretch: overlapping
+            r1, r2 = np.zeros(3), np.zeros(3)
+            dr = 0.0
+            ds = 0.0
             for i in range(dim):
-                a1[i] = c1[i] + min(s1, 1.0) * (c2[i] - c1[i])
-                a2[i] = c2[i] + min(s2, 1.0) * (c1[i] - c2[i])
+                r1[i] = c1[i] + min(s1, 1.0) * (c2[i] - c1[i])
+                r2[i] = c2[i] + min(s2, 1.0) * (c1[i] - c2[i])
+                dr += (r1[i] - r2[i]) ** 2
+                ds += (a1[i] - a2[i]) ** 2
+            if not started or dr < ds:
+                for i in range(dim):
+                    a1[i], a2[i] = r1[i], r2[i]
     # -- kkt(): eqs (15)-(18) from the start -------------------------------------------------
-    G1, G2 = w[0], w[1]
-    v1 = _body_eval(a1, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
-    v2 = _body_eval(a2, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, G2, Hb, 1)
+    G1 = w[0]
+    _body_eval(a1, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
     gg = 0.0
     gd = 0.0
-    cc = 0.0
-    cr = 0.0
     for i in range(dim):
         gg += G1[i] * G1[i]
         gd += G1[i] * (a2[i] - a1[i])
-        cc += G2[i] * G2[i]
-        cr += G2[i] * -G1[i]
     lk = max(gd, 0.0) / gg if gg > 0.0 else 0.0
-    l2 = max(cr / cc, 0.0) if cc > 0.0 else 0.0   # _start_multipliers of one function
-    if not l2 > 0.0:
-        l2 = math.sqrt(gg) / max(math.sqrt(cc), 1e-300)
+    l2 = np.zeros(m2)                            # _start_multipliers(G2, -G1, v2)
+    G2 = np.zeros((m2, dim))
+    v2 = np.zeros(m2)
+    if poly2:
+        for j in range(m2):
+            acc = 0.0
+            for i in range(dim):
+                G2[j, i] = N2[j, i]
+                acc += N2[j, i] * a2[i]
+            v2[j] = acc - cl2[j]
+        top = -np.inf
+        for j in range(m2):
+            top = max(top, v2[j])
+        near = 0
+        for j in range(m2):
+            if v2[j] >= top - NEAR_ACTIVE:
+                near += 1
+        A = np.zeros((dim, near))
+        k = 0
+        for j in range(m2):
+            if v2[j] >= top - NEAR_ACTIVE:
+                for i in range(dim):
+                    A[i, k] = G2[j, i]
+                k += 1
+        rhs = np.zeros(dim)
+        for i in range(dim):
+            rhs[i] = -G1[i]
+        sol = np.zeros(near)
+        _nnls(A, rhs, sol)
+        k = 0
+        for j in range(m2):
+            if v2[j] >= top - NEAR_ACTIVE:
+                l2[j] = sol[k]
+                k += 1
+    else:
+        v2[0] = _body_eval(a2, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, G2[0], Hb, 1)
+        cc = 0.0
+        cr = 0.0
+        for i in range(dim):
+            cc += G2[0, i] * G2[0, i]
+            cr += G2[0, i] * -G1[i]
+        l2[0] = max(cr / cc, 0.0) if cc > 0.0 else 0.0
+    positive = False
+    for j in range(m2):
+        positive = positive or l2[j] > 0.0
+    if not positive:
+        kmax = 0
+        for j in range(m2):
+            if v2[j] > v2[kmax]:
+                kmax = j
+        cc = 0.0
+        for i in range(dim):
+            cc += G2[kmax, i] * G2[kmax, i]
+        l2[kmax] = math.sqrt(gg) / max(math.sqrt(cc), 1e-300)
     for i in range(dim):
         x0[i] = a1[i]
         x0[dim + i] = a2[i]
     x0[2 * dim] = lk
-    x0[2 * dim + 1] = l2
-    for i in range(2 * dim + 2):
+    for j in range(m2):
+        x0[2 * dim + 1 + j] = l2[j]
+    for i in range(x0.shape[0]):
         if not np.isfinite(x0[i]):
             return FAST_FALLBACK
-    _solve_single(dim, L, par1, b01, B1, R1, par2, b02, B2, R2, _NO_PLANES, _NO_OFFSETS, x0, lo, hi, opt, x, F,
+    _solve_single(dim, L, par1, b01, B1, R1, par2, b02, B2, R2, N2, cl2, x0, lo, hi, opt, x, F,
                   xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H)
     if info[ncp.I_STATUS] != ncp.S_CONVERGED:
         return FAST_FALLBACK
@@ -844,7 +1080,8 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, c1, c2,
         out[3 + i] = o[i] + L * x[dim + i]
         out[6 + i] = G1[i] / nn
     out[9] = x[2 * dim] * L
-    out[10] = x[2 * dim + 1]
+    for j in range(m2):
+        out[10 + j] = x[2 * dim + 1 + j]
     return FAST_OK
 
 
@@ -1188,28 +1425,58 @@ def closest_points(shape1, pose1, shape2, pose2, options: ClosestPointOptions | 
 # the single functions _single_run knows: their closed-form supports and ray exits are its own
 _FAST_CLASSES = (_Ball, _EllipsoidBase, _PowerSumBase, _HalfSpaceBase)
 _FAST_BUFFERS = {}
+_NO_VERTICES = np.zeros((0, 3))
+
+
+def _fast_polytope(shape):
+    """(body-frame plane normals (m, dim), offsets (m,), vertices) of a bounded polytope whose
+    closed-form support is its vertices (shapes.Intersection._support_point), else None; kept
+    on the shape (an Intersection does not change)."""
+    kept = shape.__dict__.get("_fast_polytope", False)
+    if kept is not False:
+        return kept
+    poly = getattr(shape, "_poly", None)
+    planes = None
+    fs = shape.functions
+    if (len(fs) > 1 and all(isinstance(f, _HalfSpaceBase) for f in fs) and poly is not None and poly.bounded
+            and len(poly.b) == len(fs)):
+        rows = [f.plane() for f in fs]
+        planes = (np.array([n for n, _ in rows], float), np.array([dv for _, dv in rows], float),
+                  np.ascontiguousarray(poly.vertices, dtype=float))
+    shape.__dict__["_fast_polytope"] = planes
+    return planes
 
 
 def _single_functions(shape1, R1, p1, shape2, R2, p2, c1, c2, o, L, options):
-    """closest_points of two single functions (balls, ellipsoids, superquadrics, half-spaces)
-    by _single_run, or None where the Python driver must solve the pair (see _single_run)."""
+    """closest_points by _single_run of a single function (ball, ellipsoid, superquadric,
+    half-space) and a single function or, if the first is not a half-space, a bounded polytope;
+    None where the Python driver must solve the pair (see _single_run)."""
     f1, f2 = shape1.functions, shape2.functions
-    if len(f1) != 1 or len(f2) != 1 or not (isinstance(f1[0], _FAST_CLASSES) and isinstance(f2[0], _FAST_CLASSES)):
+    if len(f1) != 1 or not isinstance(f1[0], _FAST_CLASSES):
         return None
     dim = shape1.dim
+    if len(f2) == 1 and isinstance(f2[0], _FAST_CLASSES):
+        par2, N2b, d2b, V2b, m2 = f2[0].kernel_params, _NO_PLANES, _NO_OFFSETS, _NO_VERTICES, 1
+    elif isinstance(f1[0], _HalfSpaceBase) or isinstance(shape2, ConvexFunction):
+        return None
+    else:
+        planes = _fast_polytope(shape2)
+        if planes is None:
+            return None
+        par2, (N2b, d2b, V2b), m2 = _NO_PAR, planes, len(planes[1])
     opts = options.solver
-    key = (dim, id(opts))
+    key = (dim, m2, id(opts))
     held = _FAST_BUFFERS.get(key)
     if held is None or held[-1] is not opts:
-        if len(_FAST_BUFFERS) > 16:
+        if len(_FAST_BUFFERS) > 64:
             _FAST_BUFFERS.clear()
-        n = 2 * dim + 2
-        held = _FAST_BUFFERS[key] = ncp.dense_buffers(n, opts) + _point_bounds(dim, 1, 1) + (np.empty(n), np.empty(11),
-                                                                                           opts)
+        n = 2 * dim + 1 + m2
+        held = _FAST_BUFFERS[key] = ncp.dense_buffers(n, opts) + _point_bounds(dim, 1, m2) + (
+            np.empty(n), np.empty(10 + m2), opts)
     buf, J, H, opt, lo, hi, x0, out, _ = held
     c = np.ascontiguousarray
     status = _single_run(dim, float(L), o, f1[0].kernel_params, c(R1), p1, R1.T @ (o - p1), c(L * R1.T),
-                         f2[0].kernel_params, c(R2), p2, R2.T @ (o - p2), c(L * R2.T), (c1 - o) / L, (c2 - o) / L,
+                         par2, c(R2), p2, R2.T @ (o - p2), c(L * R2.T), N2b, d2b, V2b, (c1 - o) / L, (c2 - o) / L,
                          float(options.touch_tol), x0, lo, hi, opt, buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit,
                          buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz, buf.history, buf.steps, buf.info, buf.fbuf,
                          buf.work, J, H, out)
@@ -1218,7 +1485,7 @@ def _single_functions(shape1, R1, p1, shape2, R2, p2, c1, c2, o, L, options):
     status, iterations, residual, message = ncp.outcome_from_buffers(buf, opts)
     a1, a2 = out[:dim].copy(), out[3:3 + dim].copy()
     return ClosestPointResult(
-        a1=a1, a2=a2, l1=out[9:10].copy(), l2=out[10:11].copy(), k1=0, distance=float(np.linalg.norm(a1 - a2)),
+        a1=a1, a2=a2, l1=out[9:10].copy(), l2=out[10:10 + m2].copy(), k1=0, distance=float(np.linalg.norm(a1 - a2)),
         normal=out[6:6 + dim].copy(), overlapping=False, depth=0.0, success=True, status=status,
         iterations=iterations, residual=residual, message=message, form="eq15-18")
 

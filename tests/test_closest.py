@@ -622,18 +622,21 @@ POLYTOPE_PAIRS = [        # a single function (not a half-space) and a polytope,
 
 @pytest.mark.parametrize("name, first, second", POLYTOPE_PAIRS, ids=[p[0] for p in POLYTOPE_PAIRS])
 def test_compiled_single_against_polytope_solve_matches_the_python_rows(name, first, second, monkeypatch):
-    """closest._Solver.solve_polytope (eqs 15-18 of a single function against m2 planes, one
-    compiled call) against the same solve on _scaled_form's Python rows, over random poses with
-    the bodies apart: the same points and normals (to the closed-form tolerance), and the
-    distance of an SLSQP oracle (check_against_oracle)."""
+    """closest._single_run with a polytope body 2 (the driver's path for a single function against
+    m2 planes: start, eqs 15-18 and the normal, one compiled call) against the Python driver
+    solving the same eqs on _scaled_form's Python rows, over random poses with the bodies apart:
+    the same points and normals (to the closed-form tolerance), and the distance of an SLSQP
+    oracle (check_against_oracle)."""
     from implicit_contact import closest as cl
     rng = np.random.default_rng(RNG_SEED + 11)
     calls = []
-    compiled = cl._Solver.solve_polytope
+    compiled = cl._single_functions
 
-    def counted(self, z0, lo, hi):
-        calls.append(1)
-        return compiled(self, z0, lo, hi)
+    def counted(*args):
+        out = compiled(*args)
+        if out is not None:
+            calls.append(1)
+        return out
 
     def python_rows(self, z0, lo, hi):
         fun, jac, _, _ = cl._scaled_form(self.B1, self.B2, 0)
@@ -642,11 +645,13 @@ def test_compiled_single_against_polytope_solve_matches_the_python_rows(name, fi
     compared = 0
     for _ in range(6):
         pose1, pose2 = random_separated_poses(first, second, rng, gap_range=(0.02, 0.5))
-        monkeypatch.setattr(cl._Solver, "solve_polytope", counted)
+        monkeypatch.setattr(cl, "_single_functions", counted)
         before = len(calls)
         fast = cl.closest_points(first, pose1, second, pose2)
+        monkeypatch.setattr(cl, "_single_functions", lambda *args: None)
         monkeypatch.setattr(cl._Solver, "solve_polytope", python_rows)
         slow = cl.closest_points(first, pose1, second, pose2)
+        monkeypatch.undo()
         assert fast.success and slow.success and fast.status == slow.status
         assert fast.form == slow.form
         if len(calls) == before:
