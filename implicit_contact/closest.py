@@ -736,7 +736,6 @@ def _nnls(A, b, x):
     tol = 10.0 * max(m, n) * _MACHINE_EPS * scale
     passive = np.zeros(n, np.bool_)
     z = np.zeros(n)
-    w = np.zeros(n)
     r = np.zeros(m)
     G = np.zeros((n, n))
     rhs = np.zeros(n)

@@ -263,20 +263,13 @@ class StepProblem:
             f1, m1 = functions_of(spec.obj1)
             f2, m2 = functions_of(spec.obj2)
             c0 = int(sl.rows_geo[0])
-            p_n, p_r, sigma, dbar, dn, p_nr, s_col = (int(sl.p_n), int(sl.p_r), int(sl.sigma), int(sl.dbar), int(sl.dn),
-                                                      int(sl.p_nr), int(sl.s))
-            end = max(p_n, sigma, p_r, dbar, dn, p_nr) + 1
+            template = getattr(sl, "template", None)
+            has_sigma, has_pr, block, s_rel = (_block_entries(sl, c0) if template is None else
+                                               _block_entries(template, 0))
             pair_rows.append([spec.dim, spec.obj1.body, spec.obj2.body, f1, m1, f2, m2,
                               int(spec.obj1.fixed_halfspace), int(spec.obj2.fixed_halfspace), spec.k1,
-                              int(sigma >= 0), int(p_r >= 0),
-                              _layer_scheme(spec),
-                              spec.compliant_side, c0, end - c0,
-                              int(sl.a1[0]) - c0, len(sl.a1), int(sl.a2[0]) - c0, len(sl.a2), int(sl.l1[0]) - c0,
-                              int(sl.l2[0]) - c0, p_n - c0, int(sl.p_t[0]) - c0 if len(sl.p_t) else -1,
-                              p_r - c0 if p_r >= 0 else -1, sigma - c0 if sigma >= 0 else -1,
-                              dbar - c0 if dbar >= 0 else -1, dn - c0 if dn >= 0 else -1,
-                              p_nr - c0 if p_nr >= 0 else -1, kin1.ndof, kin2.ndof, int(spec.start_frame is not None),
-                              s_col - c0 if s_col >= 0 else -1])
+                              has_sigma, has_pr, _layer_scheme(spec), spec.compliant_side, c0, *block,
+                              kin1.ndof, kin2.ndof, int(spec.start_frame is not None), s_rel])
         pair_i = np.array(pair_rows, np.int64).reshape(len(specs), rc.NPI)
         fpar = np.array(rows) if rows else np.zeros((1, 25))
         sk_i = np.zeros((len(skeletons), rd.NKI), np.int64)
@@ -585,6 +578,27 @@ class StepProblem:
         vcol, ycol, ny, _ = t.sup_i[s]
         E = t.sup_f[s, rs.S_E:rs.S_E + 9].reshape(3, 3)[:ny]
         return t.sup_f[s, rs.S_SCALE] * (E.T @ z[ycol:ycol + ny])
+
+
+def _block_entries(sl, c0):
+    """The pair_i entries of a pair's block that its kind fixes, relative to its first column c0:
+    (has sigma, has p_r, [block length, a1, len a1, a2, len a2, l1, l2, p_n, p_t, p_r, sigma, dbar,
+    dn, p_nr], s), -1 for an unknown the block lacks. Kept on a build_layout template (c0 = 0),
+    whose moved copies (layout.PairSlots.moved) read them from it."""
+    kept = sl.__dict__.get("_block_entries") if c0 == 0 else None
+    if kept is not None:
+        return kept
+    p_n, p_r, sigma, dbar, dn, p_nr, s_col = (int(sl.p_n), int(sl.p_r), int(sl.sigma), int(sl.dbar), int(sl.dn),
+                                              int(sl.p_nr), int(sl.s))
+    end = max(p_n, sigma, p_r, dbar, dn, p_nr) + 1
+    block = (end - c0, int(sl.a1[0]) - c0, len(sl.a1), int(sl.a2[0]) - c0, len(sl.a2), int(sl.l1[0]) - c0,
+             int(sl.l2[0]) - c0, p_n - c0, int(sl.p_t[0]) - c0 if len(sl.p_t) else -1,
+             p_r - c0 if p_r >= 0 else -1, sigma - c0 if sigma >= 0 else -1, dbar - c0 if dbar >= 0 else -1,
+             dn - c0 if dn >= 0 else -1, p_nr - c0 if p_nr >= 0 else -1)
+    out = (int(sigma >= 0), int(p_r >= 0), block, s_col - c0 if s_col >= 0 else -1)
+    if c0 == 0:
+        sl.__dict__["_block_entries"] = out
+    return out
 
 
 def _source_of(bodies, skeletons):
