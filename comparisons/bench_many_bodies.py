@@ -25,12 +25,15 @@ History (shared 2-core VM, median CPU ms per landed step, steps 10-15):
         17-19 / 29-33 / 136-141 (the commit before, alternated: 17-19 / 31-33 / 138-145).
     lean kernels (no reference counts on their views, _jit.lean_kernel), 2026-12-07:
         15-18 / 23 / 101-112 (the commit before, alternated: 16 / 28 / 121-123).
+    static closest points of new pairs in one compiled call (closest._single_run), 2026-12-07:
+        14.6 / 21.0-23.6 / 82.6-97.5 (5315530, alternated: 18.5 / 24.2-27.1 / 100.6-119.6).
 What remains at 100 bodies (steps 11-15, timed per call): ~2-3 solves per landing step (friction
 rows switched on) of ~10 Newton iterations, each iteration two compiled assemblies of F and J (~0.7
 ms each for ~175 pairs: the line search's trial and the new iterate) and one Newton step (~1.1 ms:
 the closest-point blocks eliminated, ~2200 -> ~880 unknowns, 0.36 ms, and their LU, 0.24 ms), ~85
 ms of a 138 ms step; the rest is Python around the solves: the layouts rebuilt while pairs keep
-changing, the static closest points of new pairs (closest.py), the checks.
+changing (~15 ms a layout and its tables), the seeds of new pairs (their static closest points ~0.1
+ms each since 2026-12-07), the checks.
 
 Run: python -m comparisons.bench_many_bodies [--bodies 10 30 100] [--steps 16] [--jacobian auto]
 """
