@@ -241,14 +241,13 @@ def build_layout(nv_per_skeleton: list, specs: list, supports: tuple = (), joint
     (support.SupportSpec), then per skeleton its joint rows (joint_bounds: per skeleton, None or
     the (lower, upper) arrays of its rows' unknowns, rows/dynamics.py); rows follow the same order.
     A pair's block is its kind's (_pair_template) moved to its first column."""
-    lower, upper = [], []
-    col = 0
-    v_index = []
-    for nv in nv_per_skeleton:
-        v_index.append(np.arange(col, col + nv))
-        lower.append(np.full(nv, -np.inf))
-        upper.append(np.full(nv, np.inf))
-        col += nv
+    # the skeletons' velocities first: per skeleton a read-only view of one range of columns
+    ends = np.cumsum(np.asarray(nv_per_skeleton, np.int64)).tolist()
+    col = ends[-1] if ends else 0
+    columns = np.arange(col)
+    columns.flags.writeable = False
+    v_index = [columns[end - nv:end] for nv, end in zip(nv_per_skeleton, ends)]
+    lower, upper = [np.full(col, -np.inf)], [np.full(col, np.inf)]
     slots = []
     for spec in specs:
         template, lo, hi = _pair_template(spec)
