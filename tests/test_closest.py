@@ -570,6 +570,21 @@ SINGLE_PAIRS = [
 ]
 
 
+def _counting_compiled_path(cl):
+    """(calls, a stand-in for closest._single_functions that appends to calls each time the
+    compiled path answers instead of handing the pair to the Python driver)."""
+    calls = []
+    compiled = cl._single_functions
+
+    def counted(*args):
+        out = compiled(*args)
+        if out is not None:
+            calls.append(1)
+        return out
+
+    return calls, counted
+
+
 @pytest.mark.parametrize("name, first, second, offset", SINGLE_PAIRS, ids=[p[0] for p in SINGLE_PAIRS])
 def test_compiled_single_function_solve_matches_the_python_rows(name, first, second, offset, monkeypatch):
     """closest._single_run (the driver's path for two single-function bodies: start, eqs 15-18
@@ -582,15 +597,7 @@ def test_compiled_single_function_solve_matches_the_python_rows(name, first, sec
     else:
         R1, R2 = (np.array([[math.cos(t), -math.sin(t)], [math.sin(t), math.cos(t)]]) for t in (0.3, -0.7))
     pose1, pose2 = (R1, np.zeros(dim)), (R2, offset)
-    calls = []
-    compiled = cl._single_functions
-
-    def counted(*args):
-        out = compiled(*args)
-        if out is not None:
-            calls.append(1)
-        return out
-
+    calls, counted = _counting_compiled_path(cl)
     monkeypatch.setattr(cl, "_single_functions", counted)
     fast = cl.closest_points(first, pose1, second, pose2)
     assert calls, "the compiled path was not taken"
@@ -629,14 +636,7 @@ def test_compiled_single_against_polytope_solve_matches_the_python_rows(name, fi
     oracle (check_against_oracle)."""
     from implicit_contact import closest as cl
     rng = np.random.default_rng(RNG_SEED + 11)
-    calls = []
-    compiled = cl._single_functions
-
-    def counted(*args):
-        out = compiled(*args)
-        if out is not None:
-            calls.append(1)
-        return out
+    calls, counted = _counting_compiled_path(cl)
 
     def python_rows(self, z0, lo, hi):
         fun, jac, _, _ = cl._scaled_form(self.B1, self.B2, 0)
