@@ -372,7 +372,7 @@ def _weighted(w: np.ndarray, H: np.ndarray) -> np.ndarray:
 @lean_kernel
 def _body_eval(z, off, dim, L, par, b0, B, R, xb, gb, Hb, G, Hw, order):
     """_Body.eval of a single function at y = z[off:off + dim]: its scaled value f / L (returned),
-    world gradient G = R grad f and (order 2) scaled world Hessian Hw = L R Hess f R^T."""
+    (order >= 1) world gradient G = R grad f and (order 2) scaled world Hessian Hw = L R Hess f R^T."""
     for i in range(3):
         xb[i] = 0.0
     for i in range(dim):
@@ -381,11 +381,12 @@ def _body_eval(z, off, dim, L, par, b0, B, R, xb, gb, Hb, G, Hw, order):
             acc += B[i, j] * z[off + j]
         xb[i] = acc
     v = sk.evaluate(par, xb, gb, Hb, order)
-    for i in range(dim):
-        acc = 0.0
-        for j in range(dim):
-            acc += R[i, j] * gb[j]
-        G[i] = acc
+    if order >= 1:
+        for i in range(dim):
+            acc = 0.0
+            for j in range(dim):
+                acc += R[i, j] * gb[j]
+            G[i] = acc
     if order >= 2:
         for i in range(dim):
             for j in range(dim):
@@ -492,6 +493,15 @@ _MACHINE_EPS = float(np.finfo(float).eps)
 
 
 @lean_kernel
+def _dot(u, v, n):
+    """u[:n] . v[:n], summed in index order (as the loops it replaces)."""
+    acc = 0.0
+    for i in range(n):
+        acc += u[i] * v[i]
+    return acc
+
+
+@lean_kernel
 def _pnorm(v, n, p):
     """shapes._pnorm of v[:n]: ||v||_p scaled by the largest entry."""
     m = 0.0
@@ -522,20 +532,14 @@ def _local_support(par, d, xl, t2, u2):
     code = int(par[sk.CODE])
     dim = int(par[sk.DIM])
     if code == sk.BALL:
-        nn = 0.0
-        for i in range(dim):
-            nn += d[i] * d[i]
-        nn = math.sqrt(nn)
+        nn = math.sqrt(_dot(d, d, dim))
         for i in range(dim):
             xl[i] = par[sk.RADIUS] * d[i] / nn
         return
     for i in range(dim):
         xl[i] = par[sk.AX + i] * d[i]            # D = a d
     if code == sk.ELLIPSOID:
-        nn = 0.0
-        for i in range(dim):
-            nn += xl[i] * xl[i]
-        nn = math.sqrt(nn)
+        nn = math.sqrt(_dot(xl, xl, dim))
         for i in range(dim):
             xl[i] = par[sk.AX + i] * xl[i] / nn
         return
@@ -624,13 +628,7 @@ def _ray_exit(par, ob, ub, w, Hb):
         P[i] /= s
         U[i] /= s
     if code == sk.BALL or code == sk.ELLIPSOID:  # shapes._quadric_exit
-        uu = 0.0
-        pu = 0.0
-        pp = 0.0
-        for i in range(dim):
-            uu += U[i] * U[i]
-            pu += P[i] * U[i]
-            pp += P[i] * P[i]
+        uu, pu, pp = _dot(U, U, dim), _dot(P, U, dim), _dot(P, P, dim)
         if pp >= 1.0:
             return 0.0
         sq = math.sqrt(pu * pu + uu * (1.0 - pp))
@@ -648,12 +646,7 @@ def _ray_exit(par, ob, ub, w, Hb):
         X[i] = P[i] * par[sk.AX + i]
     if _local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0 >= 1.0:
         return 0.0
-    nP = 0.0
-    nU = 0.0
-    for i in range(dim):
-        nP += P[i] * P[i]
-        nU += U[i] * U[i]
-    tau = (math.sqrt(nP) + math.sqrt(dim)) / math.sqrt(nU)
+    tau = (math.sqrt(_dot(P, P, dim)) + math.sqrt(dim)) / math.sqrt(_dot(U, U, dim))
     for _ in range(_RAY_NEWTON_ITERATIONS):      # shapes._newton_from_right
         for i in range(dim):
             X[i] = (P[i] + tau * U[i]) * par[sk.AX + i]
@@ -675,20 +668,6 @@ def _ray_exit(par, ob, ub, w, Hb):
             break
         tau = tau_new
     return tau
-
-
-@lean_kernel
-def _scaled_value(par, b0, B, y, xb, gb, Hb):
-    """_Body.values of a single function at the scaled point y: f(b0 + B y) / L (B = L R^T)."""
-    dim = int(par[sk.DIM])
-    for i in range(3):
-        xb[i] = 0.0
-    for i in range(dim):
-        acc = b0[i]
-        for k in range(dim):
-            acc += B[i, k] * y[k]
-        xb[i] = acc
-    return sk.evaluate(par, xb, gb, Hb, 0)
 
 
 @lean_kernel
@@ -870,12 +849,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                 acc += PR[i, k] * Pp[sk.NORMAL + k]
             n[i] = acc
         Ppos = p1 if which == 0 else p2
-        npp = 0.0
-        npo = 0.0
-        for i in range(dim):
-            npp += n[i] * Ppos[i]
-            npo += n[i] * o[i]
-        offset = (Pp[sk.OFFSET] + npp - npo) / L
+        offset = (Pp[sk.OFFSET] + _dot(n, Ppos, dim) - _dot(n, o, dim)) / L
         for i in range(dim):
             dd[i] = -n[i]
         aQ = a2 if which == 0 else a1
@@ -935,8 +909,8 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                     top = max(top, acc - cl2[j])
                 inside2 = top < 0.0
             else:
-                inside2 = _scaled_value(par2, b02, B2, c1, xb, gb, Hb) / L < 0.0
-            if inside2 or _scaled_value(par1, b01, B1, c2, xb, gb, Hb) / L < 0.0:
+                inside2 = _body_eval(c1, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, gb, Hb, 0) < 0.0
+            if inside2 or _body_eval(c2, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, gb, Hb, 0) < 0.0:
                 return FAST_FALLBACK
             ob, ub = w[5], np.zeros(3)
             s12 = np.zeros(2)
@@ -986,10 +960,9 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
     # -- kkt(): eqs (15)-(18) from the start -------------------------------------------------
     G1 = w[0]
     _body_eval(a1, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
-    gg = 0.0
+    gg = _dot(G1, G1, dim)
     gd = 0.0
     for i in range(dim):
-        gg += G1[i] * G1[i]
         gd += G1[i] * (a2[i] - a1[i])
     lk = max(gd, 0.0) / gg if gg > 0.0 else 0.0
     l2 = np.zeros(m2)                            # _start_multipliers(G2, -G1, v2)
@@ -1028,10 +1001,9 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                 k += 1
     else:
         v2[0] = _body_eval(a2, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, G2[0], Hb, 1)
-        cc = 0.0
+        cc = _dot(G2[0], G2[0], dim)
         cr = 0.0
         for i in range(dim):
-            cc += G2[0, i] * G2[0, i]
             cr += G2[0, i] * -G1[i]
         l2[0] = max(cr / cc, 0.0) if cc > 0.0 else 0.0
     positive = False
@@ -1042,10 +1014,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
         for j in range(m2):
             if v2[j] > v2[kmax]:
                 kmax = j
-        cc = 0.0
-        for i in range(dim):
-            cc += G2[kmax, i] * G2[kmax, i]
-        l2[kmax] = math.sqrt(gg) / max(math.sqrt(cc), 1e-300)
+        l2[kmax] = math.sqrt(gg) / max(math.sqrt(_dot(G2[kmax], G2[kmax], dim)), 1e-300)
     for i in range(dim):
         x0[i] = a1[i]
         x0[dim + i] = a2[i]
@@ -1062,13 +1031,11 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
     dist2 = 0.0
     for i in range(dim):
         dist2 += (x[i] - x[dim + i]) ** 2
-    if math.sqrt(dist2) <= tol and -_scaled_value(par1, b01, B1, x, xb, gb, Hb) / L > tol:
+    if math.sqrt(dist2) <= tol and -_body_eval(x, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, gb, Hb, 0) > tol:
         return FAST_FALLBACK                     # a spurious root inside body 1: overlapping
     # -- result(): world points, multipliers, the normal from body 1's gradient ------------------
     _body_eval(x, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
-    nn = 0.0
-    for i in range(dim):
-        nn += G1[i] * G1[i]
+    nn = _dot(G1, G1, dim)
     if not nn > 0.0:
         return FAST_FALLBACK
     nn = math.sqrt(nn)
