@@ -488,81 +488,7 @@ def _solve_single(dim, L, par1, b01, B1, R1, par2, b02, B2, R2, N2, c2, x0, lo, 
 # solves the pair from the start, so the two can differ only by round-off.
 FAST_OK, FAST_FALLBACK = 0, 1
 _FAST_CODES = (sk.BALL, sk.ELLIPSOID, sk.POWER, sk.BARR, sk.PLANE)
-_RAY_NEWTON_ITERATIONS = 100       # shapes.RAY_NEWTON_ITERATIONS
-_MACHINE_EPS = float(np.finfo(float).eps)
-
-
-@lean_kernel
-def _dot(u, v, n):
-    """u[:n] . v[:n], summed in index order (as the loops it replaces)."""
-    acc = 0.0
-    for i in range(n):
-        acc += u[i] * v[i]
-    return acc
-
-
-@lean_kernel
-def _pnorm(v, n, p):
-    """shapes._pnorm of v[:n]: ||v||_p scaled by the largest entry."""
-    m = 0.0
-    for i in range(n):
-        m = max(m, abs(v[i]))
-    if not m > 0.0:
-        return m
-    acc = 0.0
-    for i in range(n):
-        acc += (abs(v[i]) / m) ** p
-    return m * acc ** (1.0 / p)
-
-
-@lean_kernel
-def _lp_support(D, n, p, out):
-    """shapes._lp_support of D[:n] into out[:n]: argmax {D.X : ||X||_p <= 1}."""
-    ps = p / (p - 1.0)
-    N = _pnorm(D, n, ps)
-    for i in range(n):
-        s = 1.0 if D[i] > 0.0 else (-1.0 if D[i] < 0.0 else 0.0)
-        out[i] = s * (abs(D[i]) / N) ** (ps - 1.0)
-
-
-@lean_kernel
-def _local_support(par, d, xl, t2, u2):
-    """The shapes' _local_support of the local direction d (dim entries) into xl: a ball, an
-    ellipsoid, a superquadric (both of Barr's levels). t2, u2: (2,) scratch."""
-    code = int(par[sk.CODE])
-    dim = int(par[sk.DIM])
-    if code == sk.BALL:
-        nn = math.sqrt(_dot(d, d, dim))
-        for i in range(dim):
-            xl[i] = par[sk.RADIUS] * d[i] / nn
-        return
-    for i in range(dim):
-        xl[i] = par[sk.AX + i] * d[i]            # D = a d
-    if code == sk.ELLIPSOID:
-        nn = math.sqrt(_dot(xl, xl, dim))
-        for i in range(dim):
-            xl[i] = par[sk.AX + i] * xl[i] / nn
-        return
-    if code == sk.POWER:
-        _lp_support(xl, dim, par[sk.N1], xl)
-        for i in range(dim):
-            xl[i] *= par[sk.AX + i]
-        return
-    # BARR (3D): the xy level inside the z level
-    n1, n2 = par[sk.N1], par[sk.N2]
-    D2 = xl[2]
-    nxy = _pnorm(xl, 2, n2 / (n2 - 1.0))
-    t2[0], t2[1] = nxy, D2
-    _lp_support(t2, 2, n1, t2)
-    if nxy > 0.0:
-        u2[0], u2[1] = xl[0], xl[1]
-        _lp_support(u2, 2, n2, u2)
-        xl[0], xl[1] = t2[0] * u2[0], t2[0] * u2[1]
-    else:
-        xl[0] = xl[1] = 0.0
-    xl[2] = t2[1]
-    for i in range(3):
-        xl[i] *= par[sk.AX + i]
+_MACHINE_EPS = sk.MACHINE_EPS
 
 
 @lean_kernel
@@ -581,7 +507,7 @@ def _support(par, R, p, o, L, dirw, out, w):
         for k in range(dim):
             acc += db[k] * par[sk.R0 + 3 * k + i]
         dl[i] = acc
-    _local_support(par, dl, xl, w[3], w[4])
+    sk.support_local(par, dl, xl, w[3], w[4])
     for i in range(dim):                         # body point c0 + R0 xl
         acc = 0.0
         for k in range(dim):
@@ -592,82 +518,6 @@ def _support(par, R, p, o, L, dirw, out, w):
         for k in range(dim):
             acc += R[i, k] * db[k]
         out[i] = (acc + p[i] - o[i]) / L
-
-
-@lean_kernel
-def _local_value(par, Xs, order, xb, gb, Hb):
-    """f at the local point Xs (already times the semi-axes): evaluate at c0 + R0 Xs."""
-    dim = int(par[sk.DIM])
-    for i in range(3):
-        xb[i] = 0.0
-    for i in range(dim):
-        acc = 0.0
-        for k in range(dim):
-            acc += par[sk.R0 + 3 * i + k] * Xs[k]
-        xb[i] = par[sk.C0 + i] + acc
-    return sk.evaluate(par, xb, gb, Hb, order)
-
-
-@lean_kernel
-def _ray_exit(par, ob, ub, w, Hb):
-    """shapes' _ray_exit of a bounded function from the body point ob along ub (both dim):
-    the quadrics' closed form, Newton from the right for the power sums. w: (6, 3) scratch."""
-    code = int(par[sk.CODE])
-    dim = int(par[sk.DIM])
-    P, U, X, xb, gb = w[0], w[1], w[2], w[3], w[4]
-    for i in range(dim):                         # local: (o - c0) R0, u R0
-        acc = 0.0
-        accu = 0.0
-        for k in range(dim):
-            acc += (ob[k] - par[sk.C0 + k]) * par[sk.R0 + 3 * k + i]
-            accu += ub[k] * par[sk.R0 + 3 * k + i]
-        P[i] = acc
-        U[i] = accu
-    for i in range(dim):
-        s = par[sk.RADIUS] if code == sk.BALL else par[sk.AX + i]
-        P[i] /= s
-        U[i] /= s
-    if code == sk.BALL or code == sk.ELLIPSOID:  # shapes._quadric_exit
-        uu, pu, pp = _dot(U, U, dim), _dot(P, U, dim), _dot(P, P, dim)
-        if pp >= 1.0:
-            return 0.0
-        sq = math.sqrt(pu * pu + uu * (1.0 - pp))
-        return (1.0 - pp) / (pu + sq) if pu >= 0.0 else (sq - pu) / uu
-    q = par[sk.N1]
-    s = par[sk.S]
-    anyp = False
-    for i in range(dim):
-        anyp = anyp or P[i] != 0.0
-    if not anyp:                                 # g(tau U) = tau^n1 g(U)
-        for i in range(dim):
-            X[i] = U[i] * par[sk.AX + i]
-        return (_local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0) ** (-1.0 / q)
-    for i in range(dim):
-        X[i] = P[i] * par[sk.AX + i]
-    if _local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0 >= 1.0:
-        return 0.0
-    tau = (math.sqrt(_dot(P, P, dim)) + math.sqrt(dim)) / math.sqrt(_dot(U, U, dim))
-    for _ in range(_RAY_NEWTON_ITERATIONS):      # shapes._newton_from_right
-        for i in range(dim):
-            X[i] = (P[i] + tau * U[i]) * par[sk.AX + i]
-        value = _local_value(par, X, 1, xb, gb, Hb)
-        slope = 0.0
-        for i in range(dim):
-            gl = 0.0
-            for k in range(dim):
-                gl += gb[k] * par[sk.R0 + 3 * k + i]
-            slope += gl * (U[i] * par[sk.AX + i])
-        v = (value * q / s + 1.0) - 1.0          # (g - 1, as shapes' phi computes it)
-        dv = slope * q / s
-        if not dv > 0.0:
-            break
-        step = v / dv
-        tau_new = tau - step
-        if tau_new >= tau or step <= 4.0 * _MACHINE_EPS * tau:
-            tau = min(tau, tau_new) if tau_new > 0.0 else tau
-            break
-        tau = tau_new
-    return tau
 
 
 @lean_kernel
@@ -849,7 +699,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                 acc += PR[i, k] * Pp[sk.NORMAL + k]
             n[i] = acc
         Ppos = p1 if which == 0 else p2
-        offset = (Pp[sk.OFFSET] + _dot(n, Ppos, dim) - _dot(n, o, dim)) / L
+        offset = (Pp[sk.OFFSET] + sk.dot(n, Ppos, dim) - sk.dot(n, o, dim)) / L
         for i in range(dim):
             dd[i] = -n[i]
         aQ = a2 if which == 0 else a1
@@ -942,7 +792,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                         s = min(s, e)
                     s12[1] = s
                 else:
-                    s12[which] = _ray_exit(par1 if which == 0 else par2, ob, ub, w, Hb)
+                    s12[which] = sk.ray_exit(par1 if which == 0 else par2, ob, ub, w, Hb)
             s1, s2 = s12[0], s12[1]
             if s1 + s2 > 1.0 + tol:
                 return FAST_FALLBACK             # the rays share a stretch: overlapping
@@ -960,7 +810,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
     # -- kkt(): eqs (15)-(18) from the start -------------------------------------------------
     G1 = w[0]
     _body_eval(a1, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
-    gg = _dot(G1, G1, dim)
+    gg = sk.dot(G1, G1, dim)
     gd = 0.0
     for i in range(dim):
         gd += G1[i] * (a2[i] - a1[i])
@@ -1001,7 +851,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
                 k += 1
     else:
         v2[0] = _body_eval(a2, 0, dim, L, par2, b02, B2, R2, xb, gb, Hb, G2[0], Hb, 1)
-        cc = _dot(G2[0], G2[0], dim)
+        cc = sk.dot(G2[0], G2[0], dim)
         cr = 0.0
         for i in range(dim):
             cr += G2[0, i] * -G1[i]
@@ -1014,7 +864,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
         for j in range(m2):
             if v2[j] > v2[kmax]:
                 kmax = j
-        l2[kmax] = math.sqrt(gg) / max(math.sqrt(_dot(G2[kmax], G2[kmax], dim)), 1e-300)
+        l2[kmax] = math.sqrt(gg) / max(math.sqrt(sk.dot(G2[kmax], G2[kmax], dim)), 1e-300)
     for i in range(dim):
         x0[i] = a1[i]
         x0[dim + i] = a2[i]
@@ -1035,7 +885,7 @@ def _single_run(dim, L, o, par1, R1, p1, b01, B1, par2, R2, p2, b02, B2, N2b, d2
         return FAST_FALLBACK                     # a spurious root inside body 1: overlapping
     # -- result(): world points, multipliers, the normal from body 1's gradient ------------------
     _body_eval(x, 0, dim, L, par1, b01, B1, R1, xb, gb, Hb, G1, Hb, 1)
-    nn = _dot(G1, G1, dim)
+    nn = sk.dot(G1, G1, dim)
     if not nn > 0.0:
         return FAST_FALLBACK
     nn = math.sqrt(nn)

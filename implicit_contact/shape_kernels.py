@@ -22,11 +22,15 @@ The Barr derivatives are those of shapes.py's module docstring (rho = |X| / w in
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._jit import kernel, lean_kernel
 
 BALL, ELLIPSOID, POWER, BARR, PLANE, CYLINDER = 1, 2, 3, 4, 5, 6
+RAY_NEWTON_ITERATIONS = 100      # 1-D Newton from outside on a convex function: monotone
+MACHINE_EPS = float(np.finfo(float).eps)
 
 # par layout
 CODE, DIM = 0, 1
@@ -219,3 +223,181 @@ def evaluate_many(par, X, order):
                 for j in range(dim):
                     Hs[k, i, j] = H[i, j]
     return f, G, Hs
+
+
+# ---------------------------------------------------------------------------------------------
+# support points and ray exits of the bounded closed forms (shapes.py, closest._single_run)
+# ---------------------------------------------------------------------------------------------
+@lean_kernel
+def dot(u, v, n):
+    """u[:n] . v[:n], summed in index order (as the loops it replaces)."""
+    acc = 0.0
+    for i in range(n):
+        acc += u[i] * v[i]
+    return acc
+
+
+@lean_kernel
+def _pnorm(v, n, p):
+    """||v[:n]||_p, scaled by the largest entry against overflow (shapes._pnorm of one vector)."""
+    m = 0.0
+    for i in range(n):
+        m = max(m, abs(v[i]))
+    if not m > 0.0:
+        return m
+    acc = 0.0
+    for i in range(n):
+        acc += (abs(v[i]) / m) ** p
+    return m * acc ** (1.0 / p)
+
+
+@lean_kernel
+def _lp_support(D, n, p, out):
+    """argmax {D.X : ||X||_p <= 1} of D[:n], into out[:n] (may be D)."""
+    ps = p / (p - 1.0)
+    N = _pnorm(D, n, ps)
+    for i in range(n):
+        s = 1.0 if D[i] > 0.0 else (-1.0 if D[i] < 0.0 else 0.0)
+        out[i] = s * (abs(D[i]) / N) ** (ps - 1.0)
+
+
+@lean_kernel
+def support_local(par, d, xl, t2, u2):
+    """The support point, in local coordinates, of a ball, an ellipsoid or a superquadric (both of
+    Barr's levels) along the local direction d (dim entries, not zero), into xl: the argmax of
+    D.X over the unit ball of g, D = a d, is the gradient of the dual norm, X_i = sgn D_i
+    (|D_i| / ||D||_p*)^(p* - 1), applied at both levels of Barr's form. t2, u2: (2,) scratch."""
+    code = int(par[CODE])
+    dim = int(par[DIM])
+    if code == BALL:
+        nn = math.sqrt(dot(d, d, dim))
+        for i in range(dim):
+            xl[i] = par[RADIUS] * d[i] / nn
+        return
+    for i in range(dim):
+        xl[i] = par[AX + i] * d[i]            # D = a d
+    if code == ELLIPSOID:
+        nn = math.sqrt(dot(xl, xl, dim))
+        for i in range(dim):
+            xl[i] = par[AX + i] * xl[i] / nn
+        return
+    if code == POWER:
+        _lp_support(xl, dim, par[N1], xl)
+        for i in range(dim):
+            xl[i] *= par[AX + i]
+        return
+    # BARR (3D): the xy level inside the z level
+    n1, n2 = par[N1], par[N2]
+    D2 = xl[2]
+    nxy = _pnorm(xl, 2, n2 / (n2 - 1.0))
+    t2[0], t2[1] = nxy, D2
+    _lp_support(t2, 2, n1, t2)
+    if nxy > 0.0:
+        u2[0], u2[1] = xl[0], xl[1]
+        _lp_support(u2, 2, n2, u2)
+        xl[0], xl[1] = t2[0] * u2[0], t2[0] * u2[1]
+    else:
+        xl[0] = xl[1] = 0.0
+    xl[2] = t2[1]
+    for i in range(3):
+        xl[i] *= par[AX + i]
+
+
+@lean_kernel
+def _local_value(par, Xs, order, xb, gb, Hb):
+    """f at the local point Xs (already times the semi-axes): evaluate at c0 + R0 Xs."""
+    dim = int(par[DIM])
+    for i in range(3):
+        xb[i] = 0.0
+    for i in range(dim):
+        acc = 0.0
+        for k in range(dim):
+            acc += par[R0 + 3 * i + k] * Xs[k]
+        xb[i] = par[C0 + i] + acc
+    return evaluate(par, xb, gb, Hb, order)
+
+
+@lean_kernel
+def ray_exit(par, ob, ub, w, Hb):
+    """tau >= 0 where the ray ob + tau ub (body frame, dim entries, ub not zero) from inside a ball,
+    an ellipsoid or a superquadric leaves it: the quadrics' closed form (the largest root of
+    |P + tau U| = 1 in scaled coordinates, without cancellation); for the power sums g(tau U) =
+    tau^n1 g(U) from the centre, else Newton from a tau right of the root (g convex along the
+    ray, so Newton from the right is monotone). w: (6, 3) scratch."""
+    code = int(par[CODE])
+    dim = int(par[DIM])
+    P, U, X, xb, gb = w[0], w[1], w[2], w[3], w[4]
+    for i in range(dim):                         # local: (o - c0) R0, u R0
+        acc = 0.0
+        accu = 0.0
+        for k in range(dim):
+            acc += (ob[k] - par[C0 + k]) * par[R0 + 3 * k + i]
+            accu += ub[k] * par[R0 + 3 * k + i]
+        P[i] = acc
+        U[i] = accu
+    for i in range(dim):
+        s = par[RADIUS] if code == BALL else par[AX + i]
+        P[i] /= s
+        U[i] /= s
+    if code == BALL or code == ELLIPSOID:  # (as shapes._quadric_exit)
+        uu, pu, pp = dot(U, U, dim), dot(P, U, dim), dot(P, P, dim)
+        if pp >= 1.0:
+            return 0.0
+        sq = math.sqrt(pu * pu + uu * (1.0 - pp))
+        return (1.0 - pp) / (pu + sq) if pu >= 0.0 else (sq - pu) / uu
+    q = par[N1]
+    s = par[S]
+    anyp = False
+    for i in range(dim):
+        anyp = anyp or P[i] != 0.0
+    if not anyp:                                 # g(tau U) = tau^n1 g(U)
+        for i in range(dim):
+            X[i] = U[i] * par[AX + i]
+        return (_local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0) ** (-1.0 / q)
+    for i in range(dim):
+        X[i] = P[i] * par[AX + i]
+    if _local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0 >= 1.0:
+        return 0.0
+    tau = (math.sqrt(dot(P, P, dim)) + math.sqrt(dim)) / math.sqrt(dot(U, U, dim))
+    for _ in range(RAY_NEWTON_ITERATIONS):      # (as shapes._newton_from_right)
+        for i in range(dim):
+            X[i] = (P[i] + tau * U[i]) * par[AX + i]
+        value = _local_value(par, X, 1, xb, gb, Hb)
+        slope = 0.0
+        for i in range(dim):
+            gl = 0.0
+            for k in range(dim):
+                gl += gb[k] * par[R0 + 3 * k + i]
+            slope += gl * (U[i] * par[AX + i])
+        v = (value * q / s + 1.0) - 1.0          # (g - 1, as shapes' phi computes it)
+        dv = slope * q / s
+        if not dv > 0.0:
+            break
+        step = v / dv
+        tau_new = tau - step
+        if tau_new >= tau or step <= 4.0 * MACHINE_EPS * tau:
+            tau = min(tau, tau_new) if tau_new > 0.0 else tau
+            break
+        tau = tau_new
+    return tau
+
+
+@kernel
+def local_support(par, d):
+    """support_local for Python callers (shapes.py): a new (dim,) array."""
+    dim = int(par[DIM])
+    dd, xl = np.zeros(3), np.zeros(3)
+    for i in range(dim):
+        dd[i] = d[i]
+    support_local(par, dd, xl, np.zeros(2), np.zeros(2))
+    return xl[:dim].copy()
+
+
+@kernel
+def ray_exit_from(par, o, u):
+    """ray_exit for Python callers (shapes.py): o, u body-frame (dim,)."""
+    dim = int(par[DIM])
+    ob, ub = np.zeros(3), np.zeros(3)
+    for i in range(dim):
+        ob[i], ub[i] = o[i], u[i]
+    return ray_exit(par, ob, ub, np.zeros((6, 3)), np.zeros((3, 3)))

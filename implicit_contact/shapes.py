@@ -111,7 +111,7 @@ UNBOUNDED_INTERIOR_DEPTH = 1.0   # how deep (length units) an interior point of 
 MAX_VERTEX_COMBINATIONS = 20000  # unbounded polyhedra: vertex enumeration limit before LPs
 FACE_SAMPLES = 64               # points per rim circle of a capped cylinder's face (patch.py):
                                 # the cap's polygon has 0.16 % less area than its disc
-RAY_NEWTON_ITERATIONS = 100      # 1-D Newton from outside on a convex function: monotone
+RAY_NEWTON_ITERATIONS = _sk.RAY_NEWTON_ITERATIONS   # 1-D Newton from outside on a convex function
 
 
 @dataclass(frozen=True)
@@ -241,13 +241,6 @@ def _plain(value):
         return None
     a = np.asarray(value, dtype=float)
     return float(a) if a.ndim == 0 else a.tolist()
-
-
-def _lp_support(D: np.ndarray, p: float) -> np.ndarray:
-    """argmax {D.X : ||X||_p <= 1}."""
-    ps = _dual(p)
-    N = float(_pnorm(D, ps))
-    return np.sign(D) * (np.abs(D) / N) ** (ps - 1.0)
 
 
 def _beta(x: float, y: float) -> float:
@@ -437,12 +430,17 @@ class _Primitive(ConvexFunction):
             par = self.__dict__["_par"] = self._kernel_params()
         return par.copy()
 
-    def _eval(self, x, order: int):
-        """Values, gradients and Hessians (body frame) of shape_kernels at the points x."""
+    def _kernel_row(self) -> np.ndarray:
+        """The shape_kernels row of this function itself (not a copy: read it, never write it)."""
         par = self.__dict__.get("_par")
         if par is None:
             self.kernel_params
             par = self.__dict__["_par"]
+        return par
+
+    def _eval(self, x, order: int):
+        """Values, gradients and Hessians (body frame) of shape_kernels at the points x."""
+        par = self._kernel_row()
         if (type(x) is np.ndarray and x.ndim == 1 and x.shape[0] == self.dim and x.dtype == np.float64
                 and x.flags.c_contiguous):
             # one point, the most frequent call (closest.py's start): the same kernel on a (1, dim)
@@ -507,7 +505,19 @@ class _Primitive(ConvexFunction):
         return f"{d['type']}({args})"
 
 
-class _Ball(_Primitive):
+class _ClosedForms:
+    """Support point and ray exit of a bounded primitive from shape_kernels (support_local,
+    ray_exit): the same kernels the step's static closest points run (closest._single_run)."""
+
+    def _local_support(self, d):
+        return _sk.local_support(self._kernel_row(), np.ascontiguousarray(d, dtype=float))
+
+    def _ray_exit(self, o, u):
+        return float(_sk.ray_exit_from(self._kernel_row(), np.ascontiguousarray(o, dtype=float),
+                                       np.ascontiguousarray(u, dtype=float)))
+
+
+class _Ball(_ClosedForms, _Primitive):
     """f = (|x|^2 - r^2) / (2 r) in local coordinates: exact unit gradient on the surface."""
 
     bounded = True
@@ -527,14 +537,6 @@ class _Ball(_Primitive):
     @property
     def length_scale(self) -> float:
         return self.radius
-
-    def _local_support(self, d):
-        return self.radius * d / np.linalg.norm(d)
-
-    def _ray_exit(self, o, u):
-        o = self._to_local(o)
-        u = u @ self._R0 if self._rotated else u
-        return _quadric_exit(o / self.radius, u / self.radius)
 
     def to_dict(self):
         return {"type": type(self).__name__, "radius": self.radius, **self._placement_dict()}
@@ -577,7 +579,7 @@ class Disc(_Ball):
         return self._placed_mass(m, 0.5 * m * self.radius ** 2)
 
 
-class _EllipsoidBase(_Primitive):
+class _EllipsoidBase(_ClosedForms, _Primitive):
     """f = (s/2)(sum (x_i/a_i)^2 - 1), s = geometric mean of the semi-axes."""
 
     bounded = True
@@ -599,15 +601,6 @@ class _EllipsoidBase(_Primitive):
     @property
     def length_scale(self) -> float:
         return float(np.max(self.semi_axes))
-
-    def _local_support(self, d):
-        D = self.semi_axes * d
-        return self.semi_axes * D / np.linalg.norm(D)
-
-    def _ray_exit(self, o, u):
-        o = self._to_local(o)
-        u = u @ self._R0 if self._rotated else u
-        return _quadric_exit(o / self.semi_axes, u / self.semi_axes)
 
     def to_dict(self):
         return {"type": type(self).__name__, "semi_axes": self.semi_axes.tolist(), **self._placement_dict()}
@@ -651,7 +644,7 @@ def _p_disc_moments(p: float) -> tuple[float, float]:
     return area, second
 
 
-class _PowerSumBase(_Primitive):
+class _PowerSumBase(_ClosedForms, _Primitive):
     """Superquadric in Barr's form, f = (s/n1)(g - 1), g = (|X|^n2 + |Y|^n2)^(n1/n2) + |Z|^n1.
 
     With n1 == n2 = n this is sum |X_i|^n (also the 2D superellipse)."""
@@ -684,55 +677,9 @@ class _PowerSumBase(_Primitive):
         half = self._support(M * self.semi_axes)
         return c - half, c + half
 
-    def _local_support(self, d):
-        # argmax of D.X over the unit ball of g (D = a d): the gradient of the dual norm,
-        # X_i = sgn D_i (|D_i| / ||D||_p*)^(p* - 1), applied at both levels of Barr's form.
-        D = self.semi_axes * d
-        if self._single:
-            return self.semi_axes * _lp_support(D, self._n1)
-        xy = D[:2]
-        nxy = float(_pnorm(xy, _dual(self._n2)))
-        wz = _lp_support(np.array([nxy, D[2]]), self._n1)
-        X = np.empty(3)
-        X[:2] = wz[0] * _lp_support(xy, self._n2) if nxy > 0.0 else 0.0
-        X[2] = wz[1]
-        return self.semi_axes * X
-
     @property
     def length_scale(self) -> float:
         return float(np.max(self.semi_axes))
-
-    def _ray_exit(self, o, u):
-        o = self._to_local(o)
-        u = u @ self._R0 if self._rotated else u
-        P, U = o / self.semi_axes, u / self.semi_axes
-        q = self._n1
-
-        def local_value(xl, order):
-            x = self._c0 + (self._R0 @ xl if self._rotated else xl)
-            return self._eval(x, order)
-
-        def g_of(value):
-            return float(value) * q / self._s + 1.0
-
-        def g(X):
-            return g_of(local_value(X * self.semi_axes, 0)[0])
-
-        if not np.any(P):
-            # g is homogeneous of degree n1 about the centre: g(tau U) = tau^n1 g(U).
-            return g(U) ** (-1.0 / q)
-        if g(P) >= 1.0:
-            return 0.0
-        # The unit ball of g lies in [-1, 1]^dim, inside the ball of radius sqrt(dim).
-        tau = (float(np.linalg.norm(P)) + math.sqrt(self.dim)) / float(np.linalg.norm(U))
-
-        def phi(t):
-            # g - 1 and its derivative along U from one evaluation (value and gradient)
-            value, grad, _ = local_value((P + t * U) * self.semi_axes, 1)
-            slope = float((grad @ self._R0 if self._rotated else grad) @ (U * self.semi_axes))
-            return g_of(value) - 1.0, slope * q / self._s
-
-        return _newton_from_right(phi, tau)
 
 
 class Superquadric(_PowerSumBase):
