@@ -53,6 +53,8 @@ class PairSpec:
     layer_share: float = 1.0   # the share of the step's layer impulse this solve applies (order 2's
     #                            first stage: 1/2 of the midpoint rule's, rattle.py eq R11)
     patch: bool = False        # friction's e_r is the contact patch's at l (patch.py), per step
+    shared: bool = False       # another pair with friction rows joins the same two skeletons (no
+    #                            patch torsion then: stepper._share_patches)
     normal_l: np.ndarray | None = None   # the pair's unit normal at l (memory or static seed)
     start_frame: np.ndarray | None = None  # order 2's first stage (rattle.py): n, t, o and the
     #                                        levers a1 - p1, a2 - p2 at l (15,), else None

@@ -130,10 +130,13 @@ def friction_rows(stepper, att: Attempt, problem, result):
     att.fresh_rows = bool(on)
     for k in on + off:
         specs[k].with_friction = k in on
-    if on:
+    # the patches' torsion (stepper._share_patches), a new contact's along its solved normal
+    frames = stepper._frames_at_l(specs)
+    if np.all(np.isfinite(result.x)):
         problem._evaluated_at(result.x)
-        for k in on:                    # a new contact's patch along its solved normal
-            stepper._add_patch_torsion(specs[k], problem._pairs_at[k][2])
+        frames.update({k: (problem._pairs_at[k][1], problem._pairs_at[k][2])
+                       for k in range(len(specs)) if k in on or k not in frames})
+    stepper._share_patches(specs, frames)
     return RETRY
 
 
@@ -613,7 +616,9 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         if sn.sigma < 0:
             continue
         if so.sigma >= 0 and k not in sliding:   # both layouts have this pair's friction rows
-            z[sn.rows_fric] = x[so.rows_fric]
+            z[sn.p_t], z[sn.sigma] = x[so.p_t], x[so.sigma]
+            if sn.p_r >= 0 and so.p_r >= 0:      # (a shared pair's patch torsion comes and goes)
+                z[sn.p_r] = x[so.p_r]
             continue
         if k not in sliding:
             continue

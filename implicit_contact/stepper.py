@@ -177,6 +177,7 @@ _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chose
 # slides, a landing; 21 % of its runs), where Newton at h / 16 met impacts of 1e4-1e5 units and
 # stalled with friction impulses of 2e4 units; with this floor 7 of the 11 complete
 IMPULSE_SPEED = 0.01
+SHARE_LEVER = 1.0         # _share_patches: a contact more than this many torsion radii off a pair's axis holds its spin
 _TOUCH = recovery.TOUCH   # scaled normal impulse (units of the pair's s_p) above which a pair counts as touching
 # order 2's second stage solves to this fraction of the solver's tolerance: its friction rows are
 # in units of e^2 mu P_n times a slip (P_n ~ 1), so the default 1e-10 left a box's spin at 2e-9
@@ -1406,6 +1407,7 @@ class ImplicitContactStepper:
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
+        self._share_patches(specs, self._frames_at_l(specs))
         att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, self.options.solver.tol, state.h,
                                body_pos, state.states)
         att.involved, att.body_ids = involved, body_ids
@@ -1758,15 +1760,71 @@ class ImplicitContactStepper:
             spec.layer_share = 0.5      # order 2's first stage: half the layer's impulse (rattle.py, R11)
         if last is not None:
             spec.normal_l = last["normal"]
-        if with_friction:
-            self._add_patch_torsion(spec, last["normal"])
         return spec
 
     def _patch_applies(self, spec) -> bool:
         """Whether a pair's torsion comes from its contact patch: 3D, friction rows, no e_r of its
-        own, two faceted pieces, options.patch_torsion."""
-        return (spec.with_friction and (spec.patch or spec.friction.e_r == 0.0) and landing.faceted_pair(spec)
-                and self.options.patch_torsion)
+        own, two faceted pieces, not shared (_share_patches), options.patch_torsion."""
+        return (spec.with_friction and not spec.shared and (spec.patch or spec.friction.e_r == 0.0)
+                and landing.faceted_pair(spec) and self.options.patch_torsion)
+
+    def _share_patches(self, specs, frames):
+        """Patch torsion (_add_patch_torsion) for the pairs with friction rows, each along its
+        frame's normal (frames[k] = (contact point, normal), None if unknown), except a pair
+        another touching pair between the same two skeletons (every fixed body counts as one, the
+        world) holds against spinning about its normal by tangential friction on a lever arm over
+        SHARE_LEVER times its torsion radius (spec.shared: no patch torsion, taken off if it had
+        one). Decided when a step's pairs and rows are set (_specs, recovery.friction_rows) and
+        kept while a step repeats them (_repeat_step).
+
+        Such a pair's torsion row (a sticking n . w_rel = 0) repeats a constraint the other
+        pair's friction holds, and where several do, the Newton matrix is singular along their
+        torsion impulses. On example-robot-data's hyq landing on its four thigh hulls and four
+        foot spheres, the four thighs' torsion rows all held the base's yaw (the legs have no
+        vertical axis): singular values 9e-18, 1.4e-15 and 9e-13 along those impulses, every
+        solve stalled at natural residuals 1.2e-6..6.6e-6 down to h / 16, and the step failed
+        after 16 s; with their torsion shared away it completed 1 s. What is lost is a patch's own
+        torsion moment mu p_n e_r where other contacts hold the spin on lever arms over
+        SHARE_LEVER e_r: on the four-legged table of the tests, e_r / r = 3.6 % of its legs'
+        spin-down moment. Kept: the torsion of a body on one patch (a box spinning down on the
+        floor) and of contacts on one axis (two finger pads pinching an object, whose tangential
+        friction cannot hold a spin about the pinch axis: without their torsion the object turns
+        about it). Tests: tests/test_face_contact.py (the box),
+        tests/test_indeterminate_impulses.py (the table landing and spinning down, the pinch),
+        tests/test_face_campaign.py (a re-solve taking a shared torsion off)."""
+        bodies = self.scene.bodies
+
+        def skeletons(sp):
+            a, b = (bodies[o.body].skeleton_index for o in sp.objects)
+            return (a, b) if a <= b else (b, a)
+
+        groups = {}
+        for k, sp in enumerate(specs):
+            if sp.with_friction and frames.get(k) is not None:
+                groups.setdefault(skeletons(sp), []).append(k)
+        for k, sp in enumerate(specs):
+            sp.shared = False
+            if not sp.with_friction or frames.get(k) is None:
+                continue
+            point, normal = frames[k]
+            self._add_patch_torsion(sp, normal)
+            if not sp.patch:
+                continue
+            n = np.asarray(normal, float) / np.linalg.norm(normal)
+            for j in groups[skeletons(sp)]:
+                if j != k and _lever(np.asarray(frames[j][0], float) - point, n) > SHARE_LEVER * sp.friction.e_r:
+                    sp.friction, sp.patch, sp.shared = replace(sp.friction, e_r=0.0), False, True
+                    break
+
+    def _frames_at_l(self, specs) -> dict:
+        """_share_patches' frames of the pairs the last step solved: its contact point a2 and its
+        normal at l, from the memory."""
+        frames = {}
+        for k, sp in enumerate(specs):
+            last = self._last.get(sp.key)
+            if last is not None:
+                frames[k] = (last["a2"], last["normal"])
+        return frames
 
     def _add_patch_torsion(self, spec, normal):
         """A 3D pair with friction rows whose friction has no e_r of its own resists spinning with
@@ -2266,6 +2324,13 @@ def _friction_units(rows, factor):
     2's stage 1 bounds friction by h/2 f, rattle.py eq R1)."""
     return replace(rows, unit=np.array([factor * u if kind == joint_rows.FRICTION else u
                                         for u, (kind, _) in zip(rows.unit, rows.keys)]))
+
+
+def _lever(offset, n) -> float:
+    """The distance of a point at offset from an axis along the unit vector n (2D: n x offset)."""
+    if len(n) == 2:
+        return abs(n[0] * offset[1] - n[1] * offset[0])
+    return float(np.linalg.norm(np.cross(n, offset)))
 
 
 def _pose_dim(pose, dim):

@@ -89,6 +89,24 @@ def test_bodies_dropped_onto_bodies_land_without_failing(config):
     assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
 
 
+# campaign runs in which a friction re-solve took a pair's patch torsion off (another pair of the same
+# two skeletons, a cylinder on a welded cylinder and on the ground, came to touch; stepper._share_patches)
+# and raised ValueError in recovery._transfer, which copied the pair's friction rows as one block
+TORSION_TAKEN_OFF = [
+    (1491449062, "stack", "cylinder", 0.00010379320169610414),
+    (350389583, "stack", "cylinder", 0.0005494259406312307),
+]
+
+
+@pytest.mark.parametrize("config", TORSION_TAKEN_OFF, ids=lambda c: f"{c[2]}-{c[0]}")
+def test_a_re_solve_that_takes_a_shared_patch_torsion_off_carries_the_friction_over(config):
+    """The runs step to their end with no pair penetrating beyond the contact tolerance."""
+    rec = fc.run(fc.Config(*config, budget=120.0))
+    assert rec["status"] == "ok", rec["message"]
+    assert rec["steps"] == rec["steps_planned"]
+    assert rec["worst_distance"] >= -ic.StepperOptions().contact_tolerance
+
+
 # campaign runs that raised StepFailure at 66f6a2b on their first step: a cylinder sliding on its
 # cap hovers 0..1e-4 m above the ground box, parallel to it, and Newton stalled on the pair's
 # closest points (a whole face) at natural residuals 8e-9..2e-8 while the pair carried no impulse
