@@ -107,3 +107,39 @@ def test_repeat_path_steps_bit_for_bit_as_the_general_path(name):
     np.testing.assert_array_equal(fast, slow)
     assert it_fast == it_slow
     assert p_fast == p_slow          # the contact reports (made lazily on the repeat path) too
+
+
+def test_a_repeated_step_takes_no_snapshot_and_a_failed_one_is_charged_to_the_step(monkeypatch):
+    """ImplicitContactStepper._quick_repeat: a step that repeats the last one's structure writes
+    DART only after its solve succeeded, so step() takes no snapshot for it (the rolling disc:
+    one snapshot, at its first step, in 150). When the repeat fails after its solve (the rocking
+    ellipsoid's, told to), step() takes the step the general way and the failed solve's Newton
+    iterations count in report.spent, as any failed attempt's do."""
+    from implicit_contact import dart_adapter, stepper as stepper_module
+
+    snapshots = []
+    original = dart_adapter.snapshot
+
+    def counting(*args, **kwargs):
+        snapshots.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(stepper_module.adapter, "snapshot", counting)
+    world, stepper, _ = _disc()
+    for _ in range(150):
+        stepper.step()
+    assert len(snapshots) == 1
+
+    world, stepper, _ = _ellipsoid()       # (the disc's repeated solves take 0 iterations)
+    for _ in range(5):
+        stepper.step()
+    repeat = stepper._repeat_step
+
+    def solved_then_refused(h, t0):
+        report = repeat(h, t0)
+        assert report is not None                   # (it did solve: the disc repeats)
+        return None
+    stepper._repeat_step = solved_then_refused
+    report = stepper.step()
+    assert stepper._repeat_spent > 0
+    assert report.spent == stepper._repeat_spent + report.iterations
