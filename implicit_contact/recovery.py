@@ -31,6 +31,9 @@ so, mostly, is a step whose last allowed solve a recovery still wanted to restar
                                       (sigma = 0, friction outside the cone); such a    tests/test_stability_cases.py (10 bodies,
                                       re-solve is ended after 15 iterations if a pair   and ::test_watched_resolve_...)
                                       is stuck sliding (watched_solve)
+    stray_friction       failed       friction left on a pair whose p_n went to 0 (its  tests/test_indeterminate_impulses.py::
+                                      friction rows then hold any impulse at sigma = 0: test_stray_friction_...
+                                      a quadruped's foot after its first impact)
     cold_start           failed       the warm start carried impulses an impact made    tests/test_articulated.py::test_pendulum_
                                       wrong (a pendulum leaving the obstacle it hit)    strikes_ellipsoid_without_penetration_...
     reseed               failed       Newton stalled on a polytope vertex that is no     tests/test_rigid3d.py::test_dart_box_
@@ -105,6 +108,7 @@ class Attempt:
     resumed: bool = False                          # resume_watched went on with it
     proximal: bool = False                         # indeterminate_impulses: the next solve is proximal
     proximal_starts: tuple | None = None           # indeterminate_impulses: (problem, its starts not yet tried)
+    strays: set = field(default_factory=set)       # stray_friction: the (problem id, pairs) it restarted
 
 
 def friction_rows(stepper, att: Attempt, problem, result):
@@ -484,8 +488,46 @@ def friction_homotopy(stepper, att: Attempt, problem, result):
     return RETRY
 
 
+def stray_friction(stepper, att: Attempt, problem, result):
+    """A failed solve that left friction on a pair without normal impulse (p_n <= TOUCH, its
+    friction outside the cone at sigma ~ 0: _stuck_sliding): restart from that iterate with those
+    pairs' friction impulses zeroed and sigma at their slip, once per such set of pairs and rows.
+
+    With p_n = 0 a pair's friction rows e^2 mu p_n (t . v_rel) + p_t sigma = 0 hold for any
+    friction impulse at sigma = 0, and only the cone row, quadratic in p_t, pulls it back: Newton
+    crawls. p_t = 0 with sigma at the slip is the sliding state such a pair has at p_n = 0. The
+    case: example-robot-data's anymal-kinova at t = 0.106 s, a foot that touched in the
+    frictionless solve got friction rows (friction_rows), and its re-solve lowered the foot's p_n
+    to 0 with a scaled friction impulse of 3.6e-3 left: every recovery and halving stalled at
+    natural residuals 1e-3..5e-4, and the step failed; from that iterate with the foot's friction
+    zeroed the solve converged in 11 iterations."""
+    if result.success or not np.all(np.isfinite(result.x)):
+        return None
+    x = result.x
+    stray = tuple(k for k in _stuck_sliding(problem, x) if x[problem.layout.pairs[k].p_n] <= TOUCH)
+    if not stray or (id(problem), stray) in att.strays:
+        return None
+    att.strays.add((id(problem), stray))
+    z = x.copy()
+    for k in stray:
+        sl, spec = problem.layout.pairs[k], problem.specs[k]
+        try:
+            st = problem.unpack_pair(x, k)
+            vt = st.tangents @ problem.relative_velocity(x, k)
+        except (ZeroDivisionError, FloatingPointError, OverflowError):
+            return None
+        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
+        spin = spec.friction.e_r * float(st.normal @ problem._rep[k, rc.R_WREL:rc.R_WREL + 3]) if sl.p_r >= 0 else 0.0
+        z[sl.p_t] = 0.0
+        if sl.p_r >= 0:
+            z[sl.p_r] = 0.0
+        z[sl.sigma] = float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
+    att.reseeded = z
+    return RETRY
+
+
 RECOVERIES = (friction_rows, passed_through, release_idle, indeterminate_impulses, face_landing, restart_sliding,
-              cold_start, reseed, resume_watched, friction_homotopy)
+              stray_friction, cold_start, reseed, resume_watched, friction_homotopy)
 
 
 # ---------------------------------------------------------------------------------------------

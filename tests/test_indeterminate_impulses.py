@@ -16,6 +16,8 @@ to a solution, and the proximal re-solve lands it without halving (without it: 2
 guards of the endgame land the table as every new contact used to land, from a sticking start
 (recovery.SLIDE_RATIO = inf), the start a contact that may stick still gets.
 """
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -240,3 +242,56 @@ def test_a_pinch_keeps_its_pads_torsion(monkeypatch, lever):
         assert len(report.contacts) == 2 and all(c.p_r != 0.0 for c in report.contacts)
     else:
         assert turned > 0.1
+
+
+# -- friction left on a pair without normal impulse (recovery.stray_friction) --------------------------
+NO_FRICTION = 1e-12  # [scaled impulse] round-off on a zero friction impulse
+SAME_STEP = 1e-7     # [m/s, rad/s] two solutions of the step within the solver's tol (1e-10 on scaled rows)
+def test_stray_friction_restarts_a_pair_without_normal_impulse_at_zero_friction_and_its_slip(monkeypatch):
+    """A ball resting on the ground (friction rows from its last step) is kicked up and sideways:
+    its step's solution has p_n = 0 for the pair. From that solution with a friction impulse put
+    back on the pair at sigma = 0 (what a stalled re-solve left on example-robot-data's
+    anymal-kinova foot, recovery.stray_friction's case), the pair is stuck sliding with no normal
+    impulse; the recovery restarts it at p_t = 0 with sigma at its slip |v_t|, from where the
+    solve converges to the same step (p_t = 0)."""
+    world = dart_world(H)
+    ground_box(world, mu=1.0)
+    ball = dart.dynamics.Skeleton("ball")
+    _, body = ball.createFreeJointAndBodyNodePair()
+    node = body.createShapeNode(dart.dynamics.SphereShape(0.1))
+    node.createCollisionAspect()
+    node.createDynamicsAspect().setFrictionCoeff(1.0)
+    body.setMass(1.0)
+    world.addSkeleton(ball)
+    ball.setPositions([0.0, 0.0, 0.0, 0.0, 0.0, 0.1])
+    stepper = ic.ImplicitContactStepper(world)
+    for _ in range(5):
+        stepper.step()
+    ball.setVelocities([0.0, 0.0, 0.0, 0.4, 0.0, 1.0])      # off the ground, sliding along x
+    seen = []
+    rows = recovery.friction_rows
+
+    def capture(stepper_, att, problem, result):
+        if not seen and result.success:
+            seen.append((att, problem, result))
+        return rows(stepper_, att, problem, result)
+
+    monkeypatch.setattr(recovery, "RECOVERIES", tuple(capture if r is rows else r for r in recovery.RECOVERIES))
+    stepper.step()
+    att, problem, result = seen[0]
+    sl = problem.layout.pairs[0]
+    assert sl.sigma >= 0 and result.x[sl.p_n] == 0.0            # rows from the last step, no impulse now
+    stray = result.x.copy()
+    stray[sl.p_t], stray[sl.sigma] = [0.3, -0.2], 0.0
+    failed = replace(result, x=stray, status=ncp.Status.MAX_ITERATIONS)
+    assert recovery.stray_friction(stepper, att, problem, failed) is recovery.RETRY
+    start = att.reseeded
+    slip = problem.unpack_pair(stray, 0).tangents @ problem.relative_velocity(stray, 0)
+    np.testing.assert_array_equal(start[sl.p_t], 0.0)
+    assert start[sl.sigma] == pytest.approx(np.linalg.norm(slip), rel=1e-12) and start[sl.sigma] > 0.3
+    solved = step_solver.solve(problem, start, stepper.options.solver)
+    assert solved.success
+    np.testing.assert_allclose(solved.x[sl.p_t], 0.0, atol=NO_FRICTION)
+    v = problem.layout.v_index[0]
+    np.testing.assert_allclose(solved.x[v], result.x[v], rtol=0, atol=SAME_STEP)
+    assert recovery.stray_friction(stepper, att, problem, failed) is None     # once per pairs and rows
