@@ -510,18 +510,14 @@ def stray_friction(stepper, att: Attempt, problem, result):
     att.strays.add((id(problem), stray))
     z = x.copy()
     for k in stray:
-        sl, spec = problem.layout.pairs[k], problem.specs[k]
+        sl = problem.layout.pairs[k]
         try:
-            st = problem.unpack_pair(x, k)
-            vt = st.tangents @ problem.relative_velocity(x, k)
+            z[sl.sigma] = _slip(problem, x, k, problem.specs[k].friction, sl.p_r >= 0)[3]
         except (ZeroDivisionError, FloatingPointError, OverflowError):
             return None
-        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
-        spin = spec.friction.e_r * float(st.normal @ problem._rep[k, rc.R_WREL:rc.R_WREL + 3]) if sl.p_r >= 0 else 0.0
         z[sl.p_t] = 0.0
         if sl.p_r >= 0:
             z[sl.p_r] = 0.0
-        z[sl.sigma] = float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
     att.reseeded = z
     return RETRY
 
@@ -665,12 +661,7 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         if k not in sliding:
             continue
         spec = new.specs[k]
-        st = old.unpack_pair(x, ko)
-        vt = st.tangents @ old.relative_velocity(x, ko)
-        e = np.array([spec.friction.e_t, spec.friction.e_o][: spec.dim - 1])
-        # with torsion the slip includes the spin about the normal: e_r (n . w_rel)
-        spin = spec.friction.e_r * float(st.normal @ old._rep[ko, rc.R_WREL:rc.R_WREL + 3]) if sn.p_r >= 0 else 0.0
-        sigma = float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
+        e, vt, spin, sigma = _slip(old, x, ko, spec.friction, sn.p_r >= 0)
         if sigma > 0.0:
             z[sn.p_t] = -spec.friction.mu * x[so.p_n] * e**2 * vt / sigma
             if sn.p_r >= 0:
@@ -678,6 +669,17 @@ def _transfer(old, x, new, sliding=()) -> np.ndarray:
         z[sn.sigma] = sigma
     _swap_into(old, x, new, z, swapped, src)
     return z
+
+
+def _slip(problem, x, k, friction, torsion):
+    """Pair k's slip at x: (e, v_t, spin, sigma), e its friction ellipse's (d-1) semi-axes, v_t the
+    tangential relative velocity, spin = e_r (n . w_rel) with torsion rows (else 0), and sigma
+    = |(e v_t, spin)|, the slip multiplier of a sliding contact (eq 21)."""
+    st = problem.unpack_pair(x, k)
+    vt = st.tangents @ problem.relative_velocity(x, k)
+    e = np.array([friction.e_t, friction.e_o][: st.normal.shape[0] - 1])
+    spin = friction.e_r * float(st.normal @ problem._rep[k, rc.R_WREL:rc.R_WREL + 3]) if torsion else 0.0
+    return e, vt, spin, float(np.sqrt(np.sum((e * vt) ** 2) + spin * spin))
 
 
 def _idle_stalled(problem, result, tol) -> list:
