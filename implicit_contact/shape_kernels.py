@@ -359,7 +359,7 @@ def ray_exit(par, ob, ub, w, Hb):
     if _local_value(par, X, 0, xb, gb, Hb) * q / s + 1.0 >= 1.0:
         return 0.0
     tau = (math.sqrt(dot(P, P, dim)) + math.sqrt(dim)) / math.sqrt(dot(U, U, dim))
-    for _ in range(RAY_NEWTON_ITERATIONS):      # (as shapes._newton_from_right)
+    for _ in range(RAY_NEWTON_ITERATIONS):
         for i in range(dim):
             X[i] = (P[i] + tau * U[i]) * par[AX + i]
         value = _local_value(par, X, 1, xb, gb, Hb)
@@ -370,16 +370,25 @@ def ray_exit(par, ob, ub, w, Hb):
                 gl += gb[k] * par[R0 + 3 * k + i]
             slope += gl * (U[i] * par[AX + i])
         v = (value * q / s + 1.0) - 1.0          # (g - 1, as shapes' phi computes it)
-        dv = slope * q / s
-        if not dv > 0.0:
+        tau, done = newton_from_right_step(tau, v, slope * q / s)
+        if done:
             break
-        step = v / dv
-        tau_new = tau - step
-        if tau_new >= tau or step <= 4.0 * MACHINE_EPS * tau:
-            tau = min(tau, tau_new) if tau_new > 0.0 else tau
-            break
-        tau = tau_new
     return tau
+
+
+@lean_kernel
+def newton_from_right_step(tau, v, dv):
+    """One step of 1-D Newton on a convex phi from a tau right of its root, phi(tau) = v,
+    phi'(tau) = dv (ray_exit, shapes._newton_from_right): (the next tau, whether to stop). It
+    stops at a slope that is not positive, at a step that does not move tau left (then keeping
+    the smaller positive tau) and at a step below 4 eps tau."""
+    if not dv > 0.0:
+        return tau, True
+    step = v / dv
+    tau_new = tau - step
+    if tau_new >= tau or step <= 4.0 * MACHINE_EPS * tau:
+        return (min(tau, tau_new) if tau_new > 0.0 else tau), True
+    return tau_new, False
 
 
 @kernel

@@ -354,22 +354,15 @@ class ConvexFunction(ABC):
         return _newton_from_right(phi, tau)
 
 
-_EPS = float(np.finfo(float).eps)
-
-
 def _newton_from_right(phi, tau: float) -> float:
     """Newton on phi(tau) = 0 from a tau right of the root; phi(t) -> (value, derivative), one
-    evaluation of the function for both."""
+    evaluation of the function for both; each step is shape_kernels.newton_from_right_step, as
+    in the compiled ray exits."""
     for _ in range(RAY_NEWTON_ITERATIONS):
         v, d = phi(tau)
-        if not (d > 0.0):
+        tau, done = _sk.newton_from_right_step(float(tau), float(v), float(d))
+        if done:
             break
-        step = v / d
-        tau_new = tau - step
-        if tau_new >= tau or step <= 4.0 * _EPS * tau:
-            tau = min(tau, tau_new) if tau_new > 0.0 else tau
-            break
-        tau = tau_new
     return float(tau)
 
 
