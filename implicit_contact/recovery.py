@@ -135,12 +135,11 @@ def friction_rows(stepper, att: Attempt, problem, result):
     for k in on + off:
         specs[k].with_friction = k in on
     # the patches' torsion (stepper._share_patches), a new contact's along its solved normal
-    frames = stepper._frames_at_l(specs)
+    solved = None
     if np.all(np.isfinite(result.x)):
         problem._evaluated_at(result.x)
-        frames.update({k: (problem._pairs_at[k][1], problem._pairs_at[k][2])
-                       for k in range(len(specs)) if k in on or k not in frames})
-    stepper._share_patches(specs, frames)
+        solved = [(p[1], p[2]) for p in problem._pairs_at]
+    stepper._share_patches(specs, solved, set(on))
     return RETRY
 
 

@@ -1463,7 +1463,7 @@ class ImplicitContactStepper:
         body_ids = sorted({self._objects[i].body for p in pairs for i in p}.union(supported))
         body_pos = {b: k for k, b in enumerate(body_ids)}
         specs = [self._pair_spec(i, j, state.h, body_pos, state.states) for i, j in pairs]
-        self._share_patches(specs, self._frames_at_l(specs))
+        self._share_patches(specs)
         att = recovery.Attempt(specs, list(pairs), self.options.contact_tolerance, self.options.solver.tol, state.h,
                                body_pos, state.states)
         att.involved, att.body_ids = involved, body_ids
@@ -1824,9 +1824,10 @@ class ImplicitContactStepper:
         return (spec.with_friction and not spec.shared and (spec.patch or spec.friction.e_r == 0.0)
                 and landing.faceted_pair(spec) and self.options.patch_torsion)
 
-    def _share_patches(self, specs, frames):
+    def _share_patches(self, specs, solved=None, fresh=()):
         """Patch torsion (_add_patch_torsion) for the pairs with friction rows, each along its
-        frame's normal (frames[k] = (contact point, normal), None if unknown), except a pair
+        normal at its contact point (the last step's a2 and normal from the memory; solved[k], a
+        solve's (a2, normal), for the pairs in fresh and those the memory lacks), except a pair
         another touching pair between the same two skeletons (every fixed body counts as one, the
         world) holds against spinning about its normal by tangential friction on a lever arm over
         SHARE_LEVER times its torsion radius (spec.shared: no patch torsion, taken off if it had
@@ -1848,21 +1849,30 @@ class ImplicitContactStepper:
         about it). Tests: tests/test_face_contact.py (the box),
         tests/test_indeterminate_impulses.py (the table landing and spinning down, the pinch),
         tests/test_face_campaign.py (a re-solve taking a shared torsion off)."""
+        for sp in specs:
+            sp.shared = False
+        if not any(sp.with_friction and self._patch_applies(sp) for sp in specs):
+            return
         bodies = self.scene.bodies
 
         def skeletons(sp):
             a, b = (bodies[o.body].skeleton_index for o in sp.objects)
             return (a, b) if a <= b else (b, a)
 
-        groups = {}
+        frames, groups = {}, {}
         for k, sp in enumerate(specs):
-            if sp.with_friction and frames.get(k) is not None:
-                groups.setdefault(skeletons(sp), []).append(k)
-        for k, sp in enumerate(specs):
-            sp.shared = False
-            if not sp.with_friction or frames.get(k) is None:
+            if not sp.with_friction:
                 continue
-            point, normal = frames[k]
+            last = self._last.get(sp.key)
+            if solved is not None and (k in fresh or last is None):
+                frames[k] = solved[k]
+            elif last is not None:
+                frames[k] = (last["a2"], last["normal"])
+            else:
+                continue
+            groups.setdefault(skeletons(sp), []).append(k)
+        for k, (point, normal) in frames.items():
+            sp = specs[k]
             self._add_patch_torsion(sp, normal)
             if not sp.patch:
                 continue
@@ -1871,16 +1881,6 @@ class ImplicitContactStepper:
                 if j != k and _lever(np.asarray(frames[j][0], float) - point, n) > SHARE_LEVER * sp.friction.e_r:
                     sp.friction, sp.patch, sp.shared = replace(sp.friction, e_r=0.0), False, True
                     break
-
-    def _frames_at_l(self, specs) -> dict:
-        """_share_patches' frames of the pairs the last step solved: its contact point a2 and its
-        normal at l, from the memory."""
-        frames = {}
-        for k, sp in enumerate(specs):
-            last = self._last.get(sp.key)
-            if last is not None:
-                frames[k] = (last["a2"], last["normal"])
-        return frames
 
     def _add_patch_torsion(self, spec, normal):
         """A 3D pair with friction rows whose friction has no e_r of its own resists spinning with
