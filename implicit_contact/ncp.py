@@ -145,6 +145,7 @@ class Status(enum.Enum):
     LINE_SEARCH_FAILED = "line_search_failed"  # no direction decreased the merit
     SINGULAR = "singular"                      # ... and the Newton system was singular there
     NOT_FINITE = "not_finite"                  # fun or jac returned NaN / inf
+    HANDED_OVER = "handed_over"                # the caller's stop test ended it (solve_mcp's stop)
 
 
 @dataclass(frozen=True)
@@ -297,6 +298,7 @@ NFBUF = 4
 NOPT = 12
 # status codes (Status below) and why a NOT_FINITE / failed stop happened
 S_CONVERGED, S_MAX_ITERATIONS, S_LINE_SEARCH_FAILED, S_SINGULAR, S_NOT_FINITE = 0, 1, 2, 3, 4
+S_HANDED_OVER = 5       # set by a driver, never by mcp_iterations (solve_mcp's stop)
 WHY_START, WHY_TRIAL, WHY_JAC, WHY_STALLED = 1, 2, 3, 4
 STALL_WINDOW = 5        # iterations (SolverOptions.watch)
 STALL_GAIN = 0.5       # a best merit that fell by less than this factor over the window has stalled
@@ -780,7 +782,7 @@ def _iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, 
 _STEP_LETTERS = {STEP_NEWTON: "N", STEP_LM: "L", STEP_GRADIENT: "G"}
 _STATUS = {S_CONVERGED: Status.CONVERGED, S_MAX_ITERATIONS: Status.MAX_ITERATIONS,
            S_LINE_SEARCH_FAILED: Status.LINE_SEARCH_FAILED, S_SINGULAR: Status.SINGULAR,
-           S_NOT_FINITE: Status.NOT_FINITE}
+           S_NOT_FINITE: Status.NOT_FINITE, S_HANDED_OVER: Status.HANDED_OVER}
 
 
 def result_from_buffers(buf: Buffers, options: SolverOptions) -> McpResult:
@@ -807,6 +809,9 @@ def outcome_from_buffers(buf: Buffers, options: SolverOptions) -> tuple:
     elif status is Status.MAX_ITERATIONS and why == WHY_STALLED:
         message = (f"Stopped after {iterations} iterations (watch): stalled, natural residual "
                    f"{residual:.3g} > tol {tol:.3g}.")
+    elif status is Status.HANDED_OVER:
+        message = (f"Handed over after {iterations} iterations (the caller's stop test) at natural residual "
+                   f"{residual:.3g}.")
     elif status is Status.MAX_ITERATIONS:
         message = (f"Stopped after {iterations} iterations (max_iterations) with natural residual "
                    f"{residual:.3g} > tol {tol:.3g}.")
@@ -869,7 +874,7 @@ def check_problem(x0, lower, upper, options):
 
 
 def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], object],
-              x0, lower, upper, options: SolverOptions = SolverOptions(), blocks=None) -> McpResult:
+              x0, lower, upper, options: SolverOptions = SolverOptions(), blocks=None, stop=None) -> McpResult:
     """Solve MCP(F, l, u): ``l <= x <= u`` with ``F_i(x) = 0`` strictly inside, ``>= 0`` at ``l_i``,
     ``<= 0`` at ``u_i``.
 
@@ -878,8 +883,12 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
     or scalars, entries may be -inf / +inf.  blocks: None or (bptr, bidx), groups of unknowns
     (group g: bidx[bptr[g]:bptr[g + 1]]) whose diagonal blocks of a sparse Newton matrix are
     coupled to each other only through the other unknowns; each Newton step then eliminates them
-    first (block_elimination.py) and factorises the reduced matrix.  Never raises for
-    non-convergence: see result.status.
+    first (block_elimination.py) and factorises the reduced matrix.  stop: None or stop(x, F,
+    residual) -> bool, asked at every iterate that is not a solution before its Newton step (x
+    and F are the solver's buffers: read, do not keep); True ends the solve there with status
+    HANDED_OVER, for a caller that already knows what it will do with the solution (the
+    stepper's friction_rows: recovery.row_switch_test).  Never raises for non-convergence: see
+    result.status.
     """
     x, lo, hi = check_problem(x0, lower, upper, options)
     n = x.shape[0]
@@ -889,6 +898,9 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
         if req == REQ_F:
             buf.Ft[:] = _check_f(fun(buf.xt.copy()), n)
         elif req == REQ_J:
+            if stop is not None and stop(buf.x, buf.F, float(buf.fbuf[F_RESIDUAL])):
+                buf.info[I_STATUS] = S_HANDED_OVER
+                break
             J = jac(buf.x.copy())
             if sp.issparse(J):
                 J = J.tocsr()

@@ -129,12 +129,12 @@ def _kept(held, key, options, limit, make):
 ELIMINATE_MIN_UNKNOWNS = 500
 
 
-def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool) -> ncp.McpResult:
+def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool, stop=None) -> ncp.McpResult:
     if problem._sparse:
         problem._sync()
         blocks = closest_point_blocks(problem.layout) if problem.layout.n >= ELIMINATE_MIN_UNKNOWNS else None
         return ncp.solve_mcp(problem.fun_synced, problem.jac_synced, z0, problem.lower, problem.upper, options,
-                             blocks=blocks)
+                             blocks=blocks, stop=stop)
     x0 = np.ascontiguousarray(z0, dtype=float)
     if x0.shape != problem.lower.shape or not math.isfinite(x0 @ x0) and not np.isfinite(x0).all():
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
@@ -216,16 +216,20 @@ ENDGAME_MAX_UNKNOWNS = 600
 
 
 def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = True,
-          proximal: bool = False) -> ncp.McpResult:
+          proximal: bool = False, stop=None) -> ncp.McpResult:
     """The step's MCP from z0, polished (see the module docstring). sync: copy the pairs' k1 and
     tangent axes from their specs first (False: the tables already hold them). proximal: by
     ncp.solve_proximal with impulse_weights (impulses not unique: recovery.indeterminate_impulses),
-    from Python (the rows compiled, the solver's driver not)."""
+    from Python (the rows compiled, the solver's driver not). stop: ncp.solve_mcp's stop test, on a
+    sparse problem (a dense solve is one compiled call and runs to its end); a solve it ends
+    (HANDED_OVER) is returned as it is."""
     if proximal:
         result = ncp.solve_proximal(problem.fun, problem.jac, z0, problem.lower, problem.upper,
                                     impulse_weights(problem), options)
     else:
-        result = _solve_once(problem, z0, options, sync)
+        result = _solve_once(problem, z0, options, sync, stop)
+        if result.status is ncp.Status.HANDED_OVER:
+            return result
     if not result.success and result.residual <= ENDGAME_RESIDUAL and problem.layout.n <= ENDGAME_MAX_UNKNOWNS:
         end = ncp.newton_min_map(problem.fun, problem.jac, result.x, problem.lower, problem.upper, options.tol)
         if end.success:

@@ -1677,10 +1677,11 @@ class ImplicitContactStepper:
         """The solver options of this step's solves: the retry policy's for a retried step's substeps."""
         return self._retry_options() if self._retrying else self.options.solver
 
-    def _solve(self, problem, z0, sync=True, limit=None, watch=0, proximal=False):
+    def _solve(self, problem, z0, sync=True, limit=None, watch=0, proximal=False, stop=None):
         """step_solver.solve (compiled, polished; see there), with the retry policy's budget;
         limit: at most this many iterations; watch: ncp.SolverOptions.watch (recovery.watched_solve);
-        proximal: by the proximal point method (recovery.indeterminate_impulses)."""
+        proximal: by the proximal point method (recovery.indeterminate_impulses); stop: ncp.solve_mcp's
+        (recovery.row_switch_test)."""
         opts = self._solver_options()
         if limit is not None or watch:
             opts = self._variant(opts, opts.max_iterations if limit is None else limit, watch)
@@ -1688,7 +1689,7 @@ class ImplicitContactStepper:
         if budget is not None:
             opts = budget.admit(opts)
         try:
-            result = step_solver.solve(problem, z0, opts, sync, proximal)
+            result = step_solver.solve(problem, z0, opts, sync, proximal, stop)
             if budget is not None:
                 budget.spend(result.iterations)
             return result

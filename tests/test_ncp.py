@@ -255,6 +255,37 @@ def test_watch_changes_nothing_but_where_a_stalled_solve_stops(problem):
         np.testing.assert_array_equal(h, plain.merit_history[:6])
 
 
+@pytest.mark.parametrize("problem", PROBLEMS, ids=lambda p: p.name)
+def test_stop_hands_over_at_the_first_iterate_it_accepts(problem):
+    """solve_mcp's stop: asked at every iterate that is not a solution, before its Newton step,
+    with that iterate, F there and its natural residual; True ends the solve there (HANDED_OVER)
+    with the iterations, iterate and merit history of the plain solve up to that point. A stop that
+    never accepts changes nothing."""
+    for label, x0 in problem.starts:
+        plain = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper)
+        asked = []
+
+        def never(x, F, residual):
+            asked.append((x.copy(), residual))
+            np.testing.assert_allclose(residual, _natural_residual(x, F, problem.lower, problem.upper),
+                                       rtol=RTOL_RECOMPUTE, atol=0.0)
+            return False
+
+        quiet = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper, stop=never)
+        assert quiet.status is plain.status and quiet.iterations == plain.iterations, label
+        np.testing.assert_array_equal(quiet.x, plain.x)
+        if not asked or plain.iterations < 2:
+            continue
+        k = len(asked) // 2            # hand over at an iterate half-way
+        handed = solve_mcp(problem.fun, problem.jac, x0, problem.lower, problem.upper,
+                           stop=lambda x, F, r, seen=[]: seen.append(0) or len(seen) > k)
+        assert handed.status is Status.HANDED_OVER and not handed.success, label
+        assert handed.iterations == k, label
+        np.testing.assert_array_equal(handed.x, asked[k][0])
+        assert handed.residual == asked[k][1]
+        np.testing.assert_array_equal(handed.merit_history, plain.merit_history[:k + 1])
+
+
 def test_sparse_jacobian_gives_the_same_answer_as_dense():
     for name in ("kojima_shindo", "box_lcp_mixed", "random_lcp_20_s12", "mathiesen"):
         problem = next(p for p in PROBLEMS if p.name == name)
