@@ -1471,6 +1471,7 @@ class ImplicitContactStepper:
         att.sk_pos = {s: k for k, s in enumerate(involved)}
         att.supports = tuple(SupportSpec(body_pos[b], self._supports[b], b) for b in supported)
         att.nv = [scene.skeletons[s].ndof for s in involved]
+        att.articulated = any(scene.skeletons[s].kind == adapter.ARTICULATED for s in involved)
         return att
 
     def _solve_step(self, att, state):
