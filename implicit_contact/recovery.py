@@ -202,25 +202,23 @@ def row_switch_test(att: Attempt, problem):
     slide into the contact)."""
     if not problem._sparse or att.articulated or att.index >= MAX_SOLVES - 1 or not HANDOVER_RESIDUAL > 0.0:
         return None
-    on_idx, off_idx, on_k, off_k = [], [], [], []
+    # (pair, column of its p_n): pairs that may get rows, pairs that may lose them
+    may_on, may_off = [], []
     for k, (spec, sl) in enumerate(zip(att.specs, problem.layout.pairs)):
         if k in att.handed:
             continue
         if spec.with_friction:
-            off_idx.append(sl.p_n)
-            off_k.append(k)
+            may_off.append((k, sl.p_n))
         elif spec.friction.mu > 0.0:
-            on_idx.append(sl.p_n)
-            on_k.append(k)
-    if not (on_k or off_k):
+            may_on.append((k, sl.p_n))
+    if not (may_on or may_off):
         return None
-    on_idx, off_idx = np.array(on_idx, np.int64), np.array(off_idx, np.int64)
 
     def stop(x, F, residual):
         if not residual <= HANDOVER_RESIDUAL:
             return False
-        on = [k for k, i in zip(on_k, on_idx) if x[i] > HANDOVER_TOUCH] if on_k else []
-        off = [k for k, i in zip(off_k, off_idx) if F[i] > HANDOVER_GAP] if off_k else []
+        on = [k for k, i in may_on if x[i] > HANDOVER_TOUCH]
+        off = [k for k, i in may_off if F[i] > HANDOVER_GAP]
         if not (on or off):
             return False
         att.handover = (on, off)
