@@ -1311,6 +1311,110 @@ _NO_PAR, _NO_OFFSETS = np.zeros(0), np.zeros(0)
 _NO_MATRIX, _NO_PLANES = np.zeros((0, 0)), np.zeros((0, 3))
 
 
+def single_batch_ready(shape1, shape2) -> bool:
+    """Whether closest_points solves this pair by _single_run of two single functions (the pairs
+    closest_points_batch takes)."""
+    f1, f2 = shape1.functions, shape2.functions
+    return (len(f1) == 1 and len(f2) == 1 and isinstance(f1[0], _FAST_CLASSES) and isinstance(f2[0], _FAST_CLASSES)
+            and (shape1.bounded or shape2.bounded))
+
+
+def closest_points_batch(shapes1, poses1, shapes2, poses2):
+    """closest_points of many pairs of single functions (single_batch_ready, one dim) in one
+    compiled call, at the default options: per pair whether _single_run solved it (False: ask
+    closest_points, which falls back where _single_run does), a1, a2, the unit normal from body
+    1 to body 2, and both functions' world gradients at a1 and a2 (n, dim each). The points are
+    those closest_points returns, to round-off (the same kernel; its inputs formed in loops
+    instead of numpy's products)."""
+    n = len(shapes1)
+    dim = shapes1[0].dim if n else 3
+    par1, par2 = np.empty((n, sk.NPAR)), np.empty((n, sk.NPAR))
+    R1, R2 = np.zeros((n, 3, 3)), np.zeros((n, 3, 3))
+    p1, p2, c1, c2 = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 3))
+    L, bounded = np.empty(n), np.empty((n, 2), np.bool_)
+    for k, (s1, (Ra, pa), s2, (Rb, pb)) in enumerate(zip(shapes1, poses1, shapes2, poses2)):
+        par1[k], par2[k] = s1.functions[0].kernel_params, s2.functions[0].kernel_params
+        R1[k, :dim, :dim], p1[k, :dim], R2[k, :dim, :dim], p2[k, :dim] = Ra, pa, Rb, pb
+        c1[k, :dim], c2[k, :dim] = s1.interior_point, s2.interior_point
+        L[k] = min(s for s in (s1.length_scale, s2.length_scale) if math.isfinite(s))
+        bounded[k] = s1.bounded, s2.bounded
+    opts = _DEFAULT_OPTIONS.solver
+    size = 2 * dim + 2
+    buf, J, H, opt = ncp.dense_buffers(size, opts)
+    lo, hi = _point_bounds(dim, 1, 1)
+    ok = np.zeros(n, np.bool_)
+    out = np.zeros((n, 15))
+    _single_batch(dim, par1, R1, p1, c1, par2, R2, p2, c2, L, bounded, float(_DEFAULT_OPTIONS.touch_tol),
+                  np.empty(size), lo, hi, opt, buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da,
+                  buf.db, buf.zk, buf.Jz, buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, ok, out)
+    return ok, out[:, :dim], out[:, 3:3 + dim], out[:, 6:6 + dim], out[:, 9:9 + dim], out[:, 12:12 + dim]
+
+
+@kernel
+def _single_batch(dim, par1, R1, p1, ip1, par2, R2, p2, ip2, L, bounded, tol, x0, lo, hi, opt, x, F, xt, Ft, Phi,
+                  Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf, work, J, H, ok, out):
+    """closest_points_batch's pairs one after the other as _single_functions calls _single_run
+    (poses and interior points padded to 3; R (n, 3, 3), p, ip (n, 3)); ok[k]: converged, and
+    then out[k] = [a1 (3), a2 (3), normal (3), grad f1(a1) (3), grad f2(a2) (3)] (world)."""
+    one = np.zeros(15)
+    c1, c2, o = np.zeros(dim), np.zeros(dim), np.zeros(dim)
+    b01, b02, s1, s2 = np.zeros(dim), np.zeros(dim), np.zeros(dim), np.zeros(dim)
+    Ra, Rb = np.zeros((dim, dim)), np.zeros((dim, dim))
+    B1, B2 = np.zeros((dim, dim)), np.zeros((dim, dim))
+    pa, pb = np.zeros(dim), np.zeros(dim)
+    xb, gb, Hb = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+    for k in range(par1.shape[0]):
+        Lk = L[k]
+        for i in range(dim):
+            pa[i], pb[i] = p1[k, i], p2[k, i]
+            for j in range(dim):
+                Ra[i, j], Rb[i, j] = R1[k, i, j], R2[k, i, j]
+        for i in range(dim):
+            acc1 = acc2 = 0.0
+            for j in range(dim):
+                acc1 += Ra[i, j] * ip1[k, j]
+                acc2 += Rb[i, j] * ip2[k, j]
+            c1[i], c2[i] = acc1 + pa[i], acc2 + pb[i]
+        for i in range(dim):
+            if bounded[k, 0] and bounded[k, 1]:
+                o[i] = 0.5 * (c1[i] + c2[i])
+            else:
+                o[i] = c1[i] if bounded[k, 0] else c2[i]
+        for i in range(dim):
+            acc1 = acc2 = 0.0
+            for j in range(dim):
+                acc1 += Ra[j, i] * (o[j] - pa[j])
+                acc2 += Rb[j, i] * (o[j] - pb[j])
+                B1[i, j], B2[i, j] = Lk * Ra[j, i], Lk * Rb[j, i]
+            b01[i], b02[i] = acc1, acc2
+            s1[i], s2[i] = (c1[i] - o[i]) / Lk, (c2[i] - o[i]) / Lk
+        status = _single_run(dim, Lk, o, par1[k], Ra, pa, b01, B1, par2[k], Rb, pb, b02, B2, _NO_PLANES,
+                             _NO_OFFSETS, _NO_VERTICES, s1, s2, tol, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g,
+                             da, db, zk, Jz, history, steps, info, fbuf, work, J, H, one)
+        ok[k] = status == FAST_OK
+        if not ok[k]:
+            continue
+        for i in range(9):
+            out[k, i] = one[i]
+        # the functions' world gradients at a1 and a2: R grad f(R^T (a - p))
+        for side in range(2):
+            R = Ra if side == 0 else Rb
+            p = pa if side == 0 else pb
+            for i in range(3):
+                xb[i] = 0.0
+            for i in range(dim):
+                acc = 0.0
+                for j in range(dim):
+                    acc += R[j, i] * (one[3 * side + j] - p[j])
+                xb[i] = acc
+            sk.evaluate(par1[k] if side == 0 else par2[k], xb, gb, Hb, 1)
+            for i in range(dim):
+                acc = 0.0
+                for j in range(dim):
+                    acc += R[i, j] * gb[j]
+                out[k, 9 + 3 * side + i] = acc
+
+
 class _Solver:
     def __init__(self, B1, B2, c1, c2, options):
         self.B1, self.B2, self.c1, self.c2 = B1, B2, c1, c2

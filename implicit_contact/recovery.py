@@ -609,19 +609,24 @@ RECOVERIES = (friction_rows, passed_through, release_idle, indeterminate_impulse
 # ---------------------------------------------------------------------------------------------
 # seeds and transfers
 # ---------------------------------------------------------------------------------------------
-def _multipliers(spec, P1, P2, a1, a2, normal):
+def _multipliers(spec, P1, P2, a1, a2, normal, gradients=None):
     """KKT multipliers of eqs (15)-(16)/(28n)-(29n) consistent with given closest points:
     (l1, l2, s), s the scaled distance of a cone-form pair (rows/contact.py), else None.
 
     hat-l (eqs 24-25) by non-negative least squares on the gradients, then scaled: body 1 one
     function, the paper's l1 = hat-l (eq 15); an intersection, the cone form's l_i = hat-l_i /
-    sum hat-l and s = sum hat-l. Touching points use the normal instead of a2 - a1."""
-    _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
-    _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
+    sum hat-l and s = sum hat-l. Touching points use the normal instead of a2 - a1.
+    gradients: the functions' world gradients (G1 (m1, d), G2 (m2, d)) at a1 and a2 if known
+    (ImplicitContactStepper._seed_pairs), else evaluated at the poses P1, P2."""
+    if gradients is None:
+        _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
+        _, G2 = fm.eval_functions(spec.obj2.functions, P2, a2)
+    else:
+        G1, G2 = gradients
     d = a2 - a1
     touching = np.linalg.norm(d) <= 1e-12
     if spec.cone_form:
-        lam, _ = nnls(G1.T, normal if touching else d)
+        lam = _nonneg_lstsq(G1, normal if touching else d)
         total = float(lam.sum())
         if total <= 0.0:         # no cone combination: the function nearest to active
             f1, _ = fm.eval_functions(spec.obj1.functions, P1, a1)
@@ -630,15 +635,27 @@ def _multipliers(spec, P1, P2, a1, a2, normal):
         l1 = lam / total
         s = 0.0 if touching else total
     else:                        # one function: N1 = grad f(a1), l1 = hat-l (0 when touching)
-        l1 = np.zeros(1) if touching else nnls(G1.T, d)[0]
+        l1 = np.zeros(1) if touching else _nonneg_lstsq(G1, d)
         s = None
     N1 = G1[0] if s is None else l1 @ G1
-    l2, _ = nnls(G2.T, -N1)
+    l2 = _nonneg_lstsq(G2, -N1)
     if spec.obj1.fixed_halfspace:
         l1 = np.array([float(np.linalg.norm(d))])
     if spec.obj2.fixed_halfspace:
         l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
     return l1, l2, s
+
+
+def _nonneg_lstsq(G, b):
+    """argmin |G^T l - b| over l >= 0 for the gradients G (m, d): scipy's nnls, or for one
+    gradient g its closed form max(0, g.b / g.g) (a seed of a new pair of two single functions:
+    nnls cost ~15 us a call)."""
+    if len(G) == 1:
+        g = G[0]
+        gg = float(g @ g)
+        if gg > 0.0:
+            return np.array([max(0.0, float(g @ b) / gg)])
+    return nnls(G.T, b)[0]
 
 
 def _put_multipliers(z, sl, l1, l2, s):

@@ -150,6 +150,39 @@ def _pair_seed(pair) -> int:
     return zlib.crc32("-".join(pair).encode()) % 1000
 
 
+def test_a_batch_of_single_function_pairs_matches_closest_points_and_the_shapes_gradients():
+    """closest_points_batch (the stepper's seeds of new pairs) gives each pair's closest points
+    and normal as closest_points does, and the world gradients of both functions at them as the
+    shapes' own value_gradient; the pairs it does not take (intersections) are refused up front."""
+    from implicit_contact.closest import closest_points_batch, single_batch_ready
+
+    names = ["sphere", "ellipsoid", "superquadric", "superquadric_barr", "placed_ellipsoid"]
+    assert not single_batch_ready(SHAPES_3D["box"], SHAPES_3D["sphere"])
+    rng = np.random.default_rng(RNG_SEED)
+    shapes1, shapes2, poses1, poses2 = [], [], [], []
+    for a in names:
+        for b in names + ["plane"]:
+            s1, s2 = SHAPES_3D[a], (S.HalfSpace([0.0, 0.0, 1.0], 0.0) if b == "plane" else SHAPES_3D[b])
+            assert single_batch_ready(s1, s2)
+            if b == "plane":       # body 1 above the plane z <= 0 of a fixed pose
+                R1 = rot3(rng)
+                lowest = -min((R1 @ s1.support(R1.T @ np.array([0.0, 0.0, -1.0])))[2], 0.0)
+                pose1, pose2 = (R1, np.array([0.3, -0.2, lowest + rng.uniform(0.01, 0.5)])), (np.eye(3), np.zeros(3))
+            else:
+                pose1, pose2 = random_separated_poses(s1, s2, rng)
+            shapes1.append(s1), shapes2.append(s2), poses1.append(pose1), poses2.append(pose2)
+    ok, A1, A2, N, G1, G2 = closest_points_batch(shapes1, poses1, shapes2, poses2)
+    assert ok.all()
+    for k in range(len(shapes1)):
+        ref = closest_points(shapes1[k], poses1[k], shapes2[k], poses2[k])
+        L = min(s for s in (shapes1[k].length_scale, shapes2[k].length_scale) if math.isfinite(s))
+        assert np.allclose(A1[k], ref.a1, rtol=0, atol=1e-12 * L) and np.allclose(A2[k], ref.a2, rtol=0, atol=1e-12 * L)
+        assert np.allclose(N[k], ref.normal, rtol=0, atol=1e-12)
+        for G, shape, (R, p), a in ((G1[k], shapes1[k], poses1[k], A1[k]), (G2[k], shapes2[k], poses2[k], A2[k])):
+            _, g = shape.functions[0].value_gradient(R.T @ (a - p))
+            assert np.allclose(G, R @ g, rtol=1e-13, atol=1e-13 * np.linalg.norm(g))
+
+
 @pytest.mark.parametrize("pair", PAIRS_3D, ids=["-".join(p) for p in PAIRS_3D])
 def test_random_separated_pairs_3d_match_slsqp(pair):
     rng = np.random.default_rng(RNG_SEED + _pair_seed(pair))

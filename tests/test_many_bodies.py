@@ -63,3 +63,50 @@ def test_pile_steps_the_same_with_dense_and_sparse_jacobians(monkeypatch):
     sparse, _, _ = _run(monkeypatch, 0)
     assert contacts >= 4 and unknowns > 100          # the pile landed: a real many-body problem
     np.testing.assert_allclose(sparse, dense, rtol=0.0, atol=STATE_TOL)
+
+
+SEED_POINT_TOL = 1e-12    # [m] batched against per-pair static closest points (the same kernel)
+SEED_KKT_TOL = 1e-10      # eq (15) a1 - a2 = -l1 grad f(a1) of a seed, relative to |a1 - a2|
+
+
+def test_new_pairs_seeded_in_one_batch_match_the_per_pair_seeds(monkeypatch):
+    """ImplicitContactStepper._seed_pairs: the new pairs of two single functions apart at l take
+    their static closest points and gradients from closest.closest_points_batch. On the pile's
+    first steps every such seed equals _seed_pair's (points, multipliers), and those with body 1
+    one function satisfy eq (15), a1 - a2 = -l1 grad f(a1)."""
+    from implicit_contact import closest
+    from implicit_contact import stepper as stepper_module
+
+    world, _ = _pile()
+    stepper = ic.ImplicitContactStepper(world, on_failure="raise")
+    batched = []
+    real_batch = closest.closest_points_batch
+
+    def spy(shapes1, poses1, shapes2, poses2):
+        out = real_batch(shapes1, poses1, shapes2, poses2)
+        batched.append(int(out[0].sum()))
+        return out
+
+    monkeypatch.setattr(closest, "closest_points_batch", spy)
+    real = stepper_module.ImplicitContactStepper._seed_pairs
+    checked = []
+
+    def compare(self, problem, specs, new, state):
+        seeds = real(self, problem, specs, new, state)
+        for k in new:
+            a1, a2, l1, l2, s = seeds[k]
+            r1, r2, m1, m2, t = self._seed_pair(problem, specs[k], state)
+            assert np.allclose(a1, r1, rtol=0, atol=SEED_POINT_TOL) and np.allclose(a2, r2, rtol=0, atol=SEED_POINT_TOL)
+            assert np.allclose(l1, m1, rtol=1e-9) and np.allclose(l2, m2, rtol=1e-9) and s == t
+            spec = specs[k]
+            if len(spec.obj1.functions) == 1 and not spec.obj1.fixed_halfspace and np.linalg.norm(a2 - a1) > 1e-9:
+                P1 = problem.bodies[spec.obj1.body].pose(np.zeros(problem.bodies[spec.obj1.body].ndof))
+                _, G1 = fm.eval_functions(spec.obj1.functions, P1, a1)
+                assert np.linalg.norm(a1 - a2 + l1[0] * G1[0]) <= SEED_KKT_TOL * np.linalg.norm(a2 - a1)
+                checked.append(k)
+        return seeds
+
+    monkeypatch.setattr(stepper_module.ImplicitContactStepper, "_seed_pairs", compare)
+    for _ in range(6):
+        stepper.step()
+    assert sum(batched) >= 5 and len(checked) >= 5
