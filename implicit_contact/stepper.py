@@ -495,8 +495,7 @@ class ImplicitContactStepper:
         gravity = self.world.getGravity()
         if not self._gravity_ok(gravity):
             return None
-        for rec, (q, v, tau, fext, _), _, _ in w.skeleton_views:
-            adapter.read_raw(rec, q, v, tau, fext)
+        adapter.read_state(w.read_views, w.body_views)
         if (not sk.all_finite(w.Q, w.V, w.TAU, w.FEXT) or w.all_skeletons is None
                 or self.world.getNumSkeletons() != len(w.all_skeletons)):
             return None
@@ -505,11 +504,16 @@ class ImplicitContactStepper:
         self._forced_limits = {}
         self._retrying = self._all_pairs = self._left_out = False
         self._repeat_tried, self._repeat_spent = True, None
-        report = self._repeat_step(h, self.world.getTime())
+        t0 = self.world.getTime()
+        w.dynamics_read = True
+        try:
+            report = self._repeat_step(h, t0)
+        finally:
+            w.dynamics_read = False
         if report is None:
             return None
         self._repeat_tried = False
-        adapter.finish_step(self.world, h, w.all_skeletons)
+        adapter.finish_step(self.world, h, w.all_skeletons, t0)
         object.__setattr__(report, "spent", report.iterations)
         return report
 
@@ -1112,7 +1116,7 @@ class ImplicitContactStepper:
         lay = problem.layout
         if len(memory) != len(t.pair_i) or self._fat is None or problem._sparse:
             return None           # (the kernel's solve is dense: a sparse problem takes _one_step's LU)
-        for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports)):
+        for s, (sp, ss) in (enumerate(zip(problem.supports, lay.supports)) if problem.supports else ()):
             last = self._last_support.get(sp.key)
             if last is None or len(last[0]) != ss.y.stop - ss.y.start:
                 return None
@@ -1127,7 +1131,8 @@ class ImplicitContactStepper:
             if spec.patch:
                 spec.friction = replace(spec.friction, e_r=e_r)
                 t.pair_f[k, rc.Q_ER] = e_r
-        self._read_dart()
+        if not w.dynamics_read:
+            self._read_dart()
         code, new_f, new_z, new_rep, opts, counts = self._repeat_kernel(ctx, h, w.MB, w.FB, True,
                                                                         self.options.skip_far_pairs)
         if code != rk_repeat.OK:
@@ -2261,10 +2266,13 @@ class _World:
                                 self.MB[mo:mo + k * k].reshape(k, k), self.CG[o:o + k])
                                for rec, o, mo, k in zip(scene.skeletons, self.sk_voff, self.sk_moff, nv)]
         self.snapshot_views = [(rec.skeleton, q, v, dv, tau) for rec, (q, v, tau, _, dv), _, _ in self.skeleton_views]
+        self.read_views = [(rec.skeleton, q, v, tau, fext, M, cg) for rec, (q, v, tau, fext, _), M, cg in self.skeleton_views]
         self.commit_views = [(rec.skeleton, self.V_solved[o:o + k], self.DV_solved[o:o + k])
                              for rec, o, k in zip(scene.skeletons, self.sk_voff, nv)]
         self.J_views = {b.index: self.JB[self.bd_joff[b.index]:self.bd_joff[b.index] + 6 * nv[b.skeleton_index]]
                         .reshape(6, nv[b.skeleton_index]) for b in bodies if b.kind == adapter.ARTICULATED}
+        self.body_views = [(bodies[b], self.TG[b], self.J_views.get(b)) for b in self.read_bodies_list]
+        self.dynamics_read = False   # _quick_repeat read all of DART's state at l (adapter.read_state)
         self.bundle = bundles.world(**{name: getattr(self, name) for name in bundles.WORLD_FIELDS})
 
 
