@@ -626,7 +626,7 @@ def _multipliers(spec, P1, P2, a1, a2, normal, gradients=None):
     d = a2 - a1
     touching = np.linalg.norm(d) <= 1e-12
     if spec.cone_form:
-        lam = _nonneg_lstsq(G1, normal if touching else d)
+        lam, _ = nnls(G1.T, normal if touching else d)
         total = float(lam.sum())
         if total <= 0.0:         # no cone combination: the function nearest to active
             f1, _ = fm.eval_functions(spec.obj1.functions, P1, a1)
@@ -635,27 +635,15 @@ def _multipliers(spec, P1, P2, a1, a2, normal, gradients=None):
         l1 = lam / total
         s = 0.0 if touching else total
     else:                        # one function: N1 = grad f(a1), l1 = hat-l (0 when touching)
-        l1 = np.zeros(1) if touching else _nonneg_lstsq(G1, d)
+        l1 = np.zeros(1) if touching else nnls(G1.T, d)[0]
         s = None
     N1 = G1[0] if s is None else l1 @ G1
-    l2 = _nonneg_lstsq(G2, -N1)
+    l2, _ = nnls(G2.T, -N1)
     if spec.obj1.fixed_halfspace:
         l1 = np.array([float(np.linalg.norm(d))])
     if spec.obj2.fixed_halfspace:
         l2 = np.array([float(np.linalg.norm(N1) / np.linalg.norm(G2[0]))])
     return l1, l2, s
-
-
-def _nonneg_lstsq(G, b):
-    """argmin |G^T l - b| over l >= 0 for the gradients G (m, d): scipy's nnls, or for one
-    gradient g its closed form max(0, g.b / g.g) (a seed of a new pair of two single functions:
-    nnls cost ~15 us a call)."""
-    if len(G) == 1:
-        g = G[0]
-        gg = float(g @ g)
-        if gg > 0.0:
-            return np.array([max(0.0, float(g @ b) / gg)])
-    return nnls(G.T, b)[0]
 
 
 def _put_multipliers(z, sl, l1, l2, s):
