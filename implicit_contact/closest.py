@@ -1362,7 +1362,7 @@ def _single_batch(dim, par1, R1, p1, ip1, par2, R2, p2, ip2, L, bounded, tol, x0
     Ra, Rb = np.zeros((dim, dim)), np.zeros((dim, dim))
     B1, B2 = np.zeros((dim, dim)), np.zeros((dim, dim))
     pa, pb = np.zeros(dim), np.zeros(dim)
-    xb, gb, Hb = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+    xb, gb, Hb, G = np.zeros(3), np.zeros(3), np.zeros((3, 3)), np.zeros(3)
     for k in range(par1.shape[0]):
         Lk = L[k]
         for i in range(dim):
@@ -1396,23 +1396,13 @@ def _single_batch(dim, par1, R1, p1, ip1, par2, R2, p2, ip2, L, bounded, tol, x0
             continue
         for i in range(9):
             out[k, i] = one[i]
-        # the functions' world gradients at a1 and a2: R grad f(R^T (a - p))
-        for side in range(2):
-            R = Ra if side == 0 else Rb
-            p = pa if side == 0 else pb
-            for i in range(3):
-                xb[i] = 0.0
-            for i in range(dim):
-                acc = 0.0
-                for j in range(dim):
-                    acc += R[j, i] * (one[3 * side + j] - p[j])
-                xb[i] = acc
-            sk.evaluate(par1[k] if side == 0 else par2[k], xb, gb, Hb, 1)
-            for i in range(dim):
-                acc = 0.0
-                for j in range(dim):
-                    acc += R[i, j] * gb[j]
-                out[k, 9 + 3 * side + i] = acc
+        # the functions' world gradients at the solution (x: scaled a1, a2), as _single_run's normal
+        _body_eval(x, 0, dim, Lk, par1[k], b01, B1, Ra, xb, gb, Hb, G, Hb, 1)
+        for i in range(dim):
+            out[k, 9 + i] = G[i]
+        _body_eval(x, dim, dim, Lk, par2[k], b02, B2, Rb, xb, gb, Hb, G, Hb, 1)
+        for i in range(dim):
+            out[k, 12 + i] = G[i]
 
 
 class _Solver:
