@@ -348,10 +348,7 @@ def _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out):
     """Per row: finite stand-ins of the bounds and the FB / penalty weights of each level; returns
     whether any row has an upper bound (two levels)."""
     n = lo.shape[0]
-    two = False
-    for i in range(n):
-        if hi[i] < np.inf:
-            two = True
+    two = _two_levels(hi)
     for i in range(n):
         lo0[i] = max(lo[i], -BIG)
         hi0[i] = min(hi[i], BIG)
@@ -364,6 +361,59 @@ def _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out):
         else:
             lam_in[i], w_in[i] = 1.0, 0.0
     return two
+
+
+@lean_kernel
+def _two_levels(hi):
+    """Whether any row has an upper bound (Phi then has two levels)."""
+    for i in range(hi.shape[0]):
+        if hi[i] < np.inf:
+            return True
+    return False
+
+
+ITERATE = -1     # first_point: the start is not a solution; Newton iterations follow
+
+
+@lean_kernel
+def start_point(x0, lo, hi, xt):
+    """The solve's first point: x0 clipped to the bounds, into xt (never writes x0)."""
+    for i in range(x0.shape[0]):
+        xt[i] = min(max(x0[i], lo[i]), hi[i])
+
+
+@lean_kernel
+def first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work):
+    """The solve at its first point xt (start_point) once Ft = F(xt) is known: the counters, x
+    and F, the levels of Phi (work), the merit history[0] = psi and fbuf's residual and psi.
+    Returns S_CONVERGED when xt solves the problem to tol, S_NOT_FINITE when F is not finite
+    (info's status and reason set as mcp_iterations sets them), else ITERATE. A driver that
+    answers F itself calls it before mcp_iterations(..., started=True) and skips the generator
+    when the start already solves the problem: the rolling disc's repeated step starts at its
+    solution, and the generator's setup and first request cost 2.6 us of its 4.4 us solve."""
+    n = x.shape[0]
+    info[I_NFEV] = 1
+    info[I_NJEV] = 0
+    info[I_ITER] = 0
+    info[I_WHY] = 0
+    for i in range(n):
+        x[i] = xt[i]
+        F[i] = Ft[i]
+    if not _finite(F):
+        info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_START
+        fbuf[F_RESIDUAL] = np.nan
+        history[0] = np.nan
+        return S_NOT_FINITE
+    lo0, hi0, lam_in, w_in, lam_out, w_out = work[0], work[1], work[2], work[3], work[4], work[5]
+    two = _levels(lo, hi, opt[O_LAMBDA], lo0, hi0, lam_in, w_in, lam_out, w_out)
+    psi = _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi)
+    residual = _natural_residual(x, F, lo, hi)
+    history[0] = psi
+    fbuf[F_RESIDUAL], fbuf[F_PSI] = residual, psi
+    if residual <= opt[O_TOL]:
+        info[I_STATUS] = S_CONVERGED
+        return S_CONVERGED
+    return ITERATE
 
 
 @lean_kernel
@@ -421,10 +471,12 @@ def _finite(v):
 
 @generator_kernel
 def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history, steps, info, fbuf,
-                   work):
+                   work, started=False):
     """The solver (module docstring) as a generator of requests REQ_* (see above). x0 is the
     start; the outcome is left in x, F, info, fbuf, history (merits, length max_iterations + 1)
-    and steps (STEP_* codes). work: (7, n) scratch."""
+    and steps (STEP_* codes). work: (7, n) scratch. started: the caller has taken the first
+    point itself (start_point, Ft = F(xt), first_point returning ITERATE), so the generator
+    begins with the first Newton iteration (see first_point)."""
     n = x0.shape[0]
     tol, maxit, armijo = opt[O_TOL], int(opt[O_MAXIT]), opt[O_ARMIJO]
     memory, min_newton, min_step = int(opt[O_MEMORY]), opt[O_MIN_NEWTON], opt[O_MIN_STEP]
@@ -432,25 +484,13 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     shorten = opt[O_SHORTEN] != 0.0
     watch = int(opt[O_WATCH])
     lo0, hi0, lam_in, w_in, lam_out, w_out, gd = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
-    two = _levels(lo, hi, lam, lo0, hi0, lam_in, w_in, lam_out, w_out)
-    for i in range(n):
-        xt[i] = min(max(x0[i], lo[i]), hi[i])      # never writes the caller's x0
-    yield REQ_F
-    info[I_NFEV] = 1
-    info[I_NJEV] = 0
-    info[I_ITER] = 0
-    info[I_WHY] = 0
-    for i in range(n):
-        x[i] = xt[i]
-        F[i] = Ft[i]
-    if not _finite(F):
-        info[I_STATUS], info[I_WHY] = S_NOT_FINITE, WHY_START
-        fbuf[F_RESIDUAL] = np.nan
-        history[0] = np.nan
-        return
-    psi = _reformulate(x, F, lo0, hi0, lam_in, w_in, lam_out, w_out, two, Phi)
-    residual = _natural_residual(x, F, lo, hi)
-    history[0] = psi
+    if not started:
+        start_point(x0, lo, hi, xt)
+        yield REQ_F
+        if first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work) != ITERATE:
+            return
+    two = _two_levels(hi)          # (first_point has set the levels in work)
+    psi, residual = history[0], fbuf[F_RESIDUAL]
     nhist = 1
     eps = np.finfo(np.float64).eps
     while True:

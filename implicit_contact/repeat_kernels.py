@@ -23,7 +23,8 @@ from .rows import dynamics as rd
 from .rows import support as rs
 from .rows.tables import fill_state
 from . import ncp
-from .step_kernels import far_after, far_test, grown_boxes, kinematics, moved_beyond_margins, overlapping
+from .step_kernels import (all_finite, far_after, far_test, grown_boxes, kinematics, moved_beyond_margins,
+                           overlapping)
 from .rows.assemble import assemble
 from .step_solver import _solve_dense
 
@@ -86,7 +87,7 @@ def finish(pair_i, pair_f, sk_i, z, rep, tol, solver_tol, touch, flags,
 
 
 # codes of step beyond those of prepare and finish
-FIXED_MOVED, NEED_COAL, CANDIDATES, FAR_CHANGED, NOT_CONVERGED = 5, 6, 7, 8, 9
+FIXED_MOVED, NEED_COAL, CANDIDATES, FAR_CHANGED, NOT_CONVERGED, NOT_FINITE_STATE = 5, 6, 7, 8, 9, 10
 
 
 @kernel
@@ -117,10 +118,13 @@ def step(B, MB_src, FB_src, fat_lo, fat_hi, fat_P, mask, kin, mem_i, mem_f, mem_
     the next memory (new_f, new_z, new_rep). B: the bundles (bundles.Repeat) of the world W, the
     problem's tables T, the solver S and polishing solver SP, the context C. Returns OK or why
     the general step must take over (the world buffers then hold the step's kinematics, as _read
-    leaves them). kin: do the kinematics (False: a second call after coal was queried on fresh
-    fat boxes, NEED_COAL, or the caller did them). MB_src, FB_src: the skeletons' mass matrices
-    and forces the rows read (W.MB, W.FB; order 2's first stage: its MB1, FB1, rattle.py eq R1)."""
+    leaves them). kin: check the state read (q, v and forces finite) and do the kinematics (False:
+    a second call after coal was queried on fresh fat boxes, NEED_COAL, or the caller did them).
+    MB_src, FB_src: the skeletons' mass matrices and forces the rows read (W.MB, W.FB; order 2's
+    first stage: its MB1, FB1, rattle.py eq R1)."""
     W, T, S, SP, C = B.W, B.T, B.S, B.SP, B.C
+    if kin and not all_finite(W.Q, W.V, W.TAU, W.FEXT):
+        return NOT_FINITE_STATE       # (the general step refuses the state, ImplicitContactStepper._begin)
     if kin and kinematics(W, h, 10.0 * tol, FALSE):
         return FIXED_MOVED
     if not grown_boxes(W, fat_lo, fat_hi):

@@ -42,9 +42,29 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
     no_i = np.zeros(0, np.int64)
     no_f = np.zeros(0)
     slot_off = np.zeros(loc_off.shape[0], np.int64)
+    # the first point here, and no Newton iteration when it solves the problem (ncp.first_point)
+    ncp.start_point(x0, lo, hi, xt)
+    assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+             loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
+             st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
+    if ncp.first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work) == ncp.ITERATE:
+        _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                      loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
+                      history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws)
+
+
+@kernel
+def _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                  loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
+                  history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws):
+    """_solve_dense's Newton iterations after its first point (a kernel of its own: a kernel
+    that iterates a generator pays ~0.65 us on entry, also when it returns before the loop)."""
+    no_i = np.zeros(0, np.int64)
+    no_f = np.zeros(0)
+    slot_off = np.zeros(loc_off.shape[0], np.int64)
     Fj = np.empty(x0.shape[0])
     for req in ncp.mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history,
-                                  steps, info, fbuf, work):
+                                  steps, info, fbuf, work, TRUE):
         if req == ncp.REQ_F:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,

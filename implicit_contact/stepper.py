@@ -495,9 +495,8 @@ class ImplicitContactStepper:
         gravity = self.world.getGravity()
         if not self._gravity_ok(gravity):
             return None
-        adapter.read_state(w.read_views, w.body_views)
-        if (not sk.all_finite(w.Q, w.V, w.TAU, w.FEXT) or w.all_skeletons is None
-                or self.world.getNumSkeletons() != len(w.all_skeletons)):
+        adapter.read_state(w.read_views, w.body_views)    # (checked finite by the kernel: NOT_FINITE_STATE)
+        if w.all_skeletons is None or self.world.getNumSkeletons() != len(w.all_skeletons):
             return None
         w.raw_valid = True
         # (what step() and the first of _attempts set before a step's first attempt)
@@ -514,8 +513,7 @@ class ImplicitContactStepper:
             return None
         self._repeat_tried = False
         adapter.finish_step(self.world, h, w.all_skeletons, t0)
-        object.__setattr__(report, "spent", report.iterations)
-        return report
+        return report               # (its spent: _repeat_step's report has it, its one solve's iterations)
 
     def _gravity_ok(self, gravity) -> bool:
         """Whether the world's gravity is finite; sets _gravity_norm (kept while gravity is)."""
@@ -1149,12 +1147,11 @@ class ImplicitContactStepper:
         if problem.supports:
             self._last_support = {sp.key: (new_z[ss.y].copy(), float(new_z[ss.sigma]), problem.support_wrench(new_z, s))
                                   for s, (sp, ss) in enumerate(zip(problem.supports, lay.supports))}
-        iterations, residual = counts
-        buf = ctx.solver[3]
-        message = (f"Converged in {int(buf.info[ncp.I_ITER])} iterations: natural residual "
-                   f"{float(buf.fbuf[ncp.F_RESIDUAL]):.3g} <= tol {opts.tol:.3g}.")
+        iterations, residual, first_iterations, first_residual = counts
+        message = (f"Converged in {first_iterations} iterations: natural residual "
+                   f"{first_residual:.3g} <= tol {opts.tol:.3g}.")
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
-        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n)
+        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n, iterations)
 
     def _split_repeat(self, h, t0) -> StepReport | None:
         """_repeat_step for order 2: when stage 1 repeats the last step's structure (the same
@@ -1201,7 +1198,7 @@ class ImplicitContactStepper:
             u[s] = new_z[lay.v_index[att.sk_pos[s]]]
         if self._uncovered(frozenset(map(tuple, ctx.candidates.tolist())), u, self._world_vector(u), state):
             return None
-        iterations, residual = counts
+        iterations, residual = counts[:2]
         new_memory = memory.carried_arrays(new_f, new_z, new_rep)
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
         first = (problem, att, new_z, iterations, residual, new_memory, contacts)
@@ -1216,7 +1213,7 @@ class ImplicitContactStepper:
         """repeat_kernels.step on ctx's problem from the last step's memory, with this step's
         solver options; coal asked again once on NEED_COAL. MB, FB: the skeleton tables the rows
         read; kin: the kernel does the kinematics (False: _read did). (code, the next memory's
-        pair parameters, solution and reports, the options, (iterations, residual): _repeat_counts)."""
+        pair parameters, solution and reports, the options, the counts of _repeat_counts)."""
         w, problem, memory = self._world, ctx.problem, self._last
         opts = self._solver_options()
         if self._budget is not None:
@@ -1235,6 +1232,8 @@ class ImplicitContactStepper:
             self._refresh_fat(w.margins)
             fat = self._fat
             code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
+        if code == rk_repeat.NOT_FINITE_STATE:
+            return code, None, None, None, opts, None       # (nothing solved, nothing to count)
         problem._invalidate()
         problem.h = h
         counts = self._repeat_counts(ctx, opts)
@@ -1247,13 +1246,15 @@ class ImplicitContactStepper:
     @staticmethod
     def _repeat_counts(ctx, opts):
         """(Newton iterations, natural residual) of the repeat kernel's solve, its polish counted
-        when it was kept (step_solver.solve's rule)."""
+        when it was kept (step_solver.solve's rule), then those of the solve before its polish
+        (the report's message, as step_solver.solve's)."""
         buf, pbuf = ctx.solver[3], ctx.solver[4]
-        polished = pbuf.fbuf[ncp.F_RESIDUAL] < buf.fbuf[ncp.F_RESIDUAL] and \
-            buf.fbuf[ncp.F_RESIDUAL] > 1e-3 * opts.tol
-        iterations = int(buf.info[ncp.I_ITER]) + (int(pbuf.info[ncp.I_ITER]) if polished else 0)
-        residual = float(pbuf.fbuf[ncp.F_RESIDUAL] if polished else buf.fbuf[ncp.F_RESIDUAL])
-        return iterations, residual
+        iterations, residual = buf.info.item(ncp.I_ITER), buf.fbuf.item(ncp.F_RESIDUAL)
+        if residual > 1e-3 * opts.tol:
+            polished = pbuf.fbuf.item(ncp.F_RESIDUAL)
+            if polished < residual:
+                return iterations + pbuf.info.item(ncp.I_ITER), polished, iterations, residual
+        return iterations, residual, iterations, residual
 
     def _repeat_free_flight(self, ctx, h, t0) -> StepReport | None:
         """_repeat_step when no pair was near: the same candidates, all far, and still out of reach

@@ -143,3 +143,53 @@ def test_a_repeated_step_takes_no_snapshot_and_a_failed_one_is_charged_to_the_st
     report = stepper.step()
     assert stepper._repeat_spent > 0
     assert report.spent == stepper._repeat_spent + report.iterations
+
+
+def test_a_root_body_is_read_through_its_joint_as_dart_places_it():
+    """dart_adapter.read_body reads a root body's world transform as its parent joint's (cheaper
+    in dartpy than BodyNode.getTransform); it must be DART's world transform exactly: a welded
+    ground placed off the origin, a free body turned and moved, and the child of a revolute joint
+    on it (not a root: read by getTransform)."""
+    from implicit_contact import dart_adapter
+    import dartpy as dart
+
+    world = _world(1e-3)
+    ground = _ground(world)
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.array([0.3, -0.2, 0.5])), [0.1, -0.4, 0.25]
+    ground.getParentJoint().setTransformFromParentBodyNode(dart.math.Isometry3(T))
+    box = _dart_box(world, [0.4, 0.3, 0.2], 0.3, [0.3, 0.1, 0.7], rotation=(0.4, 1.1, -0.3))
+    joint, child = box.createRevoluteJointAndBodyNodePair(box.getBodyNode(0))
+    joint.setAxis([0.0, 1.0, 0.0])
+    T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.array([0.0, 0.0, 0.7])), [0.2, 0.0, 0.1]
+    joint.setTransformFromParentBodyNode(dart.math.Isometry3(T))
+    box.setPosition(6, 0.9)
+    for body in (ground, box.getBodyNode(0), child):
+        record = type("Record", (), {"body_node": body})
+        out = np.empty((4, 4))
+        dart_adapter.read_body(record, out)
+        np.testing.assert_array_equal(out, body.getTransform().matrix(), err_msg=body.getName())
+    assert child.getParentBodyNode() is not None
+
+
+def test_a_step_on_the_repeat_path_sees_a_fixed_body_the_user_moved():
+    """A box resting on a welded ground takes the repeat path; the user then lowers the ground by
+    2 mm through its joint between two steps. The next step must see it: the box falls freely,
+    v_z = -g h and no contact pushes (a stale ground would hold it where it was)."""
+    h = 2e-3
+    world = _world(h)
+    ground = _ground(world, mu=0.3)
+    box = _dart_box(world, [0.4, 0.3, 0.2], 0.3, [0.0, 0.0, 0.1 + 1e-9])
+    stepper = ic.ImplicitContactStepper(world)
+    taken = []
+    original = stepper._repeat_step
+    stepper._repeat_step = lambda h, t0: (lambda r: (taken.append(r is not None), r)[1])(original(h, t0))
+    for _ in range(20):
+        report = stepper.step()
+    assert taken[-1] and any(c.p_n > 0.0 for c in report.contacts), "the box should rest, on the repeat path"
+    T = ground.getParentJoint().getTransformFromParentBodyNode()
+    T.set_translation(T.translation() + [0.0, 0.0, -2e-3])
+    ground.getParentJoint().setTransformFromParentBodyNode(T)
+    report = stepper.step()
+    assert all(c.p_n == 0.0 for c in report.contacts)
+    np.testing.assert_allclose(box.getVelocities()[3:], [0.0, 0.0, -9.81 * h], atol=1e-9)
