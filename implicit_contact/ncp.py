@@ -390,7 +390,7 @@ def first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work):
     (info's status and reason set as mcp_iterations sets them), else ITERATE. A driver that
     answers F itself calls it before mcp_iterations(..., started=True) and skips the generator
     when the start already solves the problem: the rolling disc's repeated step starts at its
-    solution, and the generator's setup and first request cost 2.6 us of its 4.4 us solve."""
+    solution, and its solve took 4.4 us through the generator, 2.5 us without."""
     n = x.shape[0]
     info[I_NFEV] = 1
     info[I_NJEV] = 0
