@@ -668,14 +668,10 @@ def free_coriolis_jacobian(M, w) -> np.ndarray:
 
 def read_body(body: BodyRecord, T_out, J_out=None) -> None:
     """A body's world transform at l (4 x 4; and, with J_out (6, k), DART's world Jacobian of
-    its origin). A root body's is its parent joint's transform (DART's world transform is the
-    world frame's identity times it): dartpy's BodyNode.getTransform costs 2.4 us, this 1.7 (the
-    ground of the rolling disc, read every step to see whether the user moved it)."""
-    node = body.body_node
-    if node.getParentBodyNode() is None:
-        T_out[:] = node.getParentJoint().getRelativeTransform().matrix()
-    else:
-        T_out[:] = node.getTransform().matrix()
+    its origin). (Tried: a root body's transform through its parent joint,
+    getParentJoint().getRelativeTransform(), the same matrix bit for bit: 2.35-2.48 against
+    2.42-2.65 us for a welded ground, but 14 us against 2.4 for a FreeJoint's body.)"""
+    T_out[:] = body.body_node.getTransform().matrix()
     if J_out is not None:
         J_out[:] = body.skeleton.getWorldJacobian(body.body_node, _ORIGIN)
 

@@ -156,6 +156,19 @@ class StepReport:
     spent: int = 0             # Newton iterations of the whole call of step(), failed attempts included
 
 
+def _made_report(success, iterations, residual, status, contacts, time, substeps, message, unknowns,
+                 spent) -> StepReport:
+    """StepReport(...) with every field given, made by filling the new instance's dict: the
+    frozen dataclass's __init__ sets its ten fields one by one through object.__setattr__
+    (1.46 us against 0.61 us; the rolling disc's repeated step takes ~40 us). The same object:
+    equal to the one __init__ makes (tests/test_repeat_step.py)."""
+    report = object.__new__(StepReport)
+    report.__dict__.update(success=success, iterations=iterations, residual=residual, status=status,
+                           contacts=contacts, time=time, substeps=substeps, message=message,
+                           unknowns=unknowns, spent=spent)
+    return report
+
+
 class StepFailure(RuntimeError):
     """The MCP of a step could not be solved; the world is exactly as before the call."""
 
@@ -1151,7 +1164,7 @@ class ImplicitContactStepper:
         message = (f"Converged in {first_iterations} iterations: natural residual "
                    f"{first_residual:.3g} <= tol {opts.tol:.3g}.")
         contacts = _LazyContacts(self, problem, new_z, att.specs, new_rep)
-        return StepReport(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n, iterations)
+        return _made_report(True, iterations, residual, "CONVERGED", contacts, t0 + h, 1, message, lay.n, iterations)
 
     def _split_repeat(self, h, t0) -> StepReport | None:
         """_repeat_step for order 2: when stage 1 repeats the last step's structure (the same

@@ -145,11 +145,9 @@ def test_a_repeated_step_takes_no_snapshot_and_a_failed_one_is_charged_to_the_st
     assert report.spent == stepper._repeat_spent + report.iterations
 
 
-def test_a_root_body_is_read_through_its_joint_as_dart_places_it():
-    """dart_adapter.read_body reads a root body's world transform as its parent joint's (cheaper
-    in dartpy than BodyNode.getTransform); it must be DART's world transform exactly: a welded
-    ground placed off the origin, a free body turned and moved, and the child of a revolute joint
-    on it (not a root: read by getTransform)."""
+def test_a_body_is_read_as_dart_places_it():
+    """dart_adapter.read_body gives DART's world transform exactly: a welded ground placed off the
+    origin, a free body turned and moved, and the child of a revolute joint on it."""
     from implicit_contact import dart_adapter
     import dartpy as dart
 
@@ -164,8 +162,8 @@ def test_a_root_body_is_read_through_its_joint_as_dart_places_it():
     T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.array([0.0, 0.0, 0.7])), [0.2, 0.0, 0.1]
     joint.setTransformFromParentBodyNode(dart.math.Isometry3(T))
     box.setPosition(6, 0.9)
-    for body in (ground, box.getBodyNode(0), child):
-        record = type("Record", (), {"body_node": body})
+    for body, kind in ((ground, dart_adapter.FIXED), (box.getBodyNode(0), "free"), (child, "articulated")):
+        record = type("Record", (), {"body_node": body, "kind": kind, "skeleton": body.getSkeleton()})
         out = np.empty((4, 4))
         dart_adapter.read_body(record, out)
         np.testing.assert_array_equal(out, body.getTransform().matrix(), err_msg=body.getName())
@@ -193,3 +191,24 @@ def test_a_step_on_the_repeat_path_sees_a_fixed_body_the_user_moved():
     report = stepper.step()
     assert all(c.p_n == 0.0 for c in report.contacts)
     np.testing.assert_allclose(box.getVelocities()[3:], [0.0, 0.0, -9.81 * h], atol=1e-9)
+
+
+def test_the_repeated_steps_report_is_a_step_report_like_any_other():
+    """stepper._made_report (the repeated step's StepReport, made without the dataclass's
+    __init__) is equal to the one StepReport(...) makes, frozen and printed the same; the rolling
+    disc's repeated step returns one with every field set."""
+    import dataclasses
+
+    from implicit_contact import stepper as stepper_module
+
+    fields = (True, 3, 1e-12, "CONVERGED", (), 0.25, 1, "Converged in 3 iterations.", 11, 3)
+    made = stepper_module._made_report(*fields)
+    assert made == ic.StepReport(*fields) and repr(made) == repr(ic.StepReport(*fields))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        made.iterations = 4
+    world, stepper, _ = _disc()
+    for _ in range(5):
+        report = stepper.step()
+    assert isinstance(report, ic.StepReport) and report.success and report.status == "CONVERGED"
+    assert report.spent == report.iterations and report.unknowns > 0
+    assert report.time == pytest.approx(world.getTime()) and report.message.startswith("Converged in ")
