@@ -156,6 +156,12 @@ class StepReport:
     spent: int = 0             # Newton iterations of the whole call of step(), failed attempts included
 
 
+# repeat_kernels.step's codes returned before its solve: the solver's buffers still hold the last
+# step's counts, which a refused repeat charged to the step's budget and report.spent until 2026-12-07
+_REFUSED_BEFORE_SOLVE = frozenset((rk_repeat.NOT_FINITE_STATE, rk_repeat.FIXED_MOVED, rk_repeat.NEED_COAL,
+                                   rk_repeat.CANDIDATES, rk_repeat.FAR_CHANGED, rk_repeat.ROWS_CHANGE))
+
+
 def _made_report(success, iterations, residual, status, contacts, time, substeps, message, unknowns,
                  spent) -> StepReport:
     """StepReport(...) with every field given, made by filling the new instance's dict: the
@@ -1245,7 +1251,7 @@ class ImplicitContactStepper:
             self._refresh_fat(w.margins)
             fat = self._fat
             code = rk_repeat.step(*args, fat[0], fat[1], fat[2], fat[3], False, *tail)
-        if code == rk_repeat.NOT_FINITE_STATE:
+        if code in _REFUSED_BEFORE_SOLVE:
             return code, None, None, None, opts, None       # (nothing solved, nothing to count)
         problem._invalidate()
         problem.h = h
