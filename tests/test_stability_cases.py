@@ -124,12 +124,16 @@ def test_a_stalled_warm_solve_hands_over_at_the_watch(monkeypatch):
     """recovery.watched_solve's first-solve watch: in the 10 bodies' first 0.4 s, warm solves that
     stall are ended at WARM_WATCH = 20 iterations instead of running to the limit of 50, and the
     recoveries (cold_start, friction_rows, ...) find the same answers: the same end positions
-    (round-off apart) for fewer Newton iterations (measured: 573 against 720 unwatched)."""
+    (round-off apart) for fewer Newton iterations. Measured: 533 against 563 unwatched. (The
+    figure was 573 against 720, and this test asked for 10 % fewer, until 2026-12-07: a repeat
+    the kernel refused before its solve charged the last step's iterations again to
+    report.spent, and after a stalled solve of 50 iterations those phantom charges were
+    large; with the same trajectories, the runs at 47fd4f3 counted 536 against 702.)"""
     spent_off, q_off, ended_off = _ten_bodies(40, 15, monkeypatch, warm_watch=0)
     spent_on, q_on, ended_on = _ten_bodies(40, 15, monkeypatch, warm_watch=20)
     assert ended_on >= 1
     assert np.max(np.abs(q_on - q_off)) <= SAME_END
-    assert spent_on < 0.9 * spent_off
+    assert spent_on < spent_off
 
 
 def test_a_solve_whose_rows_will_switch_is_handed_over_with_the_switches_of_its_end(monkeypatch):
