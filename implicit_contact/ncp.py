@@ -480,7 +480,7 @@ def mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, J
     n = x0.shape[0]
     tol, maxit, armijo = opt[O_TOL], int(opt[O_MAXIT]), opt[O_ARMIJO]
     memory, min_newton, min_step = int(opt[O_MEMORY]), opt[O_MIN_NEWTON], opt[O_MIN_STEP]
-    rho, power, lm_factor, lam = opt[O_RHO], opt[O_POWER], opt[O_LM], opt[O_LAMBDA]
+    rho, power, lm_factor = opt[O_RHO], opt[O_POWER], opt[O_LM]
     shorten = opt[O_SHORTEN] != 0.0
     watch = int(opt[O_WATCH])
     lo0, hi0, lam_in, w_in, lam_out, w_out, gd = work[0], work[1], work[2], work[3], work[4], work[5], work[6]

@@ -50,18 +50,18 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
     if ncp.first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work) == ncp.ITERATE:
         _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                       loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
-                      history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws)
+                      history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
+                      no_i, no_f, slot_off)
 
 
 @kernel
 def _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                   loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
-                  history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws):
-    """_solve_dense's Newton iterations after its first point (a kernel of its own: a kernel
-    that iterates a generator pays ~0.65 us on entry, also when it returns before the loop)."""
-    no_i = np.zeros(0, np.int64)
-    no_f = np.zeros(0)
-    slot_off = np.zeros(loc_off.shape[0], np.int64)
+                  history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
+                  no_i, no_f, slot_off):
+    """_solve_dense's Newton iterations after its first point, with its empty tables no_i, no_f
+    and its slot offsets (a kernel of its own: a kernel that iterates a generator pays ~0.65 us
+    on entry, also when it returns before the loop)."""
     Fj = np.empty(x0.shape[0])
     for req in ncp.mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history,
                                   steps, info, fbuf, work, TRUE):

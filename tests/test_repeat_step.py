@@ -146,28 +146,37 @@ def test_a_repeated_step_takes_no_snapshot_and_a_failed_one_is_charged_to_the_st
 
 
 def test_a_body_is_read_as_dart_places_it():
-    """dart_adapter.read_body gives DART's world transform exactly: a welded ground placed off the
-    origin, a free body turned and moved, and the child of a revolute joint on it."""
+    """dart_adapter.read_body gives each body's world transform as the joints place it
+    (composed here from their inputs): a welded ground placed off the origin (its joint's
+    transform), a free body at exponential coordinates r and position p ([exp(r), p]), and the
+    child of a revolute joint about y on it (the free body's transform times the joint's offset
+    times the rotation by q about y)."""
     from implicit_contact import dart_adapter
     import dartpy as dart
 
+    def pose(r, p):
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.asarray(r, float)), p
+        return T
+
     world = _world(1e-3)
     ground = _ground(world)
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.array([0.3, -0.2, 0.5])), [0.1, -0.4, 0.25]
-    ground.getParentJoint().setTransformFromParentBodyNode(dart.math.Isometry3(T))
-    box = _dart_box(world, [0.4, 0.3, 0.2], 0.3, [0.3, 0.1, 0.7], rotation=(0.4, 1.1, -0.3))
+    T_ground = pose([0.3, -0.2, 0.5], [0.1, -0.4, 0.25])
+    ground.getParentJoint().setTransformFromParentBodyNode(dart.math.Isometry3(T_ground))
+    r, p = [0.4, 1.1, -0.3], [0.3, 0.1, 0.7]
+    box = _dart_box(world, [0.4, 0.3, 0.2], 0.3, p, rotation=r)
     joint, child = box.createRevoluteJointAndBodyNodePair(box.getBodyNode(0))
     joint.setAxis([0.0, 1.0, 0.0])
-    T[:3, :3], T[:3, 3] = dart.math.expMapRot(np.array([0.0, 0.0, 0.7])), [0.2, 0.0, 0.1]
-    joint.setTransformFromParentBodyNode(dart.math.Isometry3(T))
-    box.setPosition(6, 0.9)
-    for body, kind in ((ground, dart_adapter.FIXED), (box.getBodyNode(0), "free"), (child, "articulated")):
-        record = type("Record", (), {"body_node": body, "kind": kind, "skeleton": body.getSkeleton()})
+    T_offset = pose([0.0, 0.0, 0.7], [0.2, 0.0, 0.1])
+    joint.setTransformFromParentBodyNode(dart.math.Isometry3(T_offset))
+    q = 0.9
+    box.setPosition(6, q)
+    expected = {"ground": T_ground, "box": pose(r, p), "child": pose(r, p) @ T_offset @ pose([0.0, q, 0.0], [0, 0, 0])}
+    for name, body in (("ground", ground), ("box", box.getBodyNode(0)), ("child", child)):
+        record = type("Record", (), {"body_node": body})
         out = np.empty((4, 4))
         dart_adapter.read_body(record, out)
-        np.testing.assert_array_equal(out, body.getTransform().matrix(), err_msg=body.getName())
-    assert child.getParentBodyNode() is not None
+        np.testing.assert_allclose(out, expected[name], rtol=0, atol=1e-14, err_msg=name)
 
 
 def test_a_step_on_the_repeat_path_sees_a_fixed_body_the_user_moved():
