@@ -1231,7 +1231,7 @@ class ImplicitContactStepper:
     def _repeat_kernel(self, ctx, h, MB, FB, kin, use_far):
         """repeat_kernels.step on ctx's problem from the last step's memory, with this step's
         solver options; coal asked again once on NEED_COAL. MB, FB: the skeleton tables the rows
-        read; kin: the kernel does the kinematics (False: _read did). (code, the next memory's
+        read; kin: the kernel checks the state read and does the kinematics (False: _read did). (code, the next memory's
         pair parameters, solution and reports, the options, the counts of _repeat_counts)."""
         w, problem, memory = self._world, ctx.problem, self._last
         opts = self._solver_options()
