@@ -1231,8 +1231,9 @@ class ImplicitContactStepper:
     def _repeat_kernel(self, ctx, h, MB, FB, kin, use_far):
         """repeat_kernels.step on ctx's problem from the last step's memory, with this step's
         solver options; coal asked again once on NEED_COAL. MB, FB: the skeleton tables the rows
-        read; kin: the kernel checks the state read and does the kinematics (False: _read did). (code, the next memory's
-        pair parameters, solution and reports, the options, the counts of _repeat_counts)."""
+        read; kin: the kernel checks the state read and does the kinematics (False: _read did).
+        (code, the next memory's pair parameters, solution and reports, the options, the counts of
+        _repeat_counts)."""
         w, problem, memory = self._world, ctx.problem, self._last
         opts = self._solver_options()
         if self._budget is not None:
