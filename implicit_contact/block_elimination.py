@@ -181,11 +181,14 @@ def _reduced_pattern(indptr, indices, blk, rpos, cat, dst, bptr, Rptr, Ridx, Cpt
 
 
 @lean_kernel
-def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_ptr, rb_ptr, upd_ptr, upd, D, X,
-             RB, piv, Sdata, col, acc):
-    """From H's data: S's data (Sdata), each block's LU factors in place of D_b (D, pivots piv),
-    X_b = D_b^-1 H_br (X, m x |C_b| each) and H_rb (RB, |R_b| x m each); False if a local block is
-    exactly singular. col, acc: scratch of the largest block's size and |C_b|."""
+def _numeric(indptr, indices, data, blk, cat, dst, bptr, bidx, Rptr, Cptr, d_ptr, x_ptr, rb_ptr, upd_ptr, upd, D, Dn,
+             X, RB, piv, loc, mb, coupled, Sdata, col, acc):
+    """From H's data: S's data (Sdata), each block's LU factors of D_nn (module docstring: its
+    coupled unknowns) in Dn (m_b x m_b at d_ptr[b], pivots piv), D itself (D_nt and the diagonal of
+    the decoupled unknowns, for _reduce_rhs), X_n = D_nn^-1 H_nr (X, m_b x |C_b| each) and H_rb
+    (RB, |R_b| x m each); loc: per block its coupled local unknowns, then its decoupled ones; mb:
+    the count of coupled ones. False if a local block is exactly singular. coupled, col, acc:
+    scratch of n, the largest block's size and |C_b|."""
     n = indptr.shape[0] - 1
     nb = bptr.shape[0] - 1
     Sdata[:] = 0.0
@@ -193,6 +196,7 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
     X[:] = 0.0
     RB[:] = 0.0
     for i in range(n):
+        coupled[i] = 0
         for p in range(indptr[i], indptr[i + 1]):
             if data[p] == 0.0:
                 continue
@@ -201,8 +205,11 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
                 Sdata[dst[p]] += data[p]
             elif c == BB:
                 D[d_ptr[blk[i]] + dst[p]] += data[p]
+                if indices[p] != i:
+                    coupled[i] = 1
             elif c == BR:
                 X[x_ptr[blk[i]] + dst[p]] += data[p]
+                coupled[i] = 1
             else:
                 RB[rb_ptr[blk[indices[p]]] + dst[p]] += data[p]
     for b in range(nb):
@@ -210,31 +217,57 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
         nc = Cptr[b + 1] - Cptr[b]
         nrow = Rptr[b + 1] - Rptr[b]
         Db = D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m)
-        pb = piv[bptr[b]:bptr[b + 1]]
-        if not sparse_lu.dense_lu(Db, pb):
+        # a row of H with its diagonal entry alone (an inactive multiplier's Fischer-Burmeister
+        # row: da e_i) decouples its unknown: d_i = f_i / H_ii, and the rest of the block is solved
+        # without it (a mesh hull's pair: 59 of its 70 unknowns at rest, example-robot-data's talos)
+        lb = loc[bptr[b]:bptr[b + 1]]
+        k = 0
+        for a in range(m):
+            if coupled[bidx[bptr[b] + a]]:
+                lb[k] = a
+                k += 1
+        mn = k
+        for a in range(m):
+            if not coupled[bidx[bptr[b] + a]]:
+                if Db[a, a] == 0.0:
+                    return False
+                lb[k] = a
+                k += 1
+        mb[b] = mn
+        Dc = Dn[d_ptr[b]:d_ptr[b] + mn * mn].reshape(mn, mn)
+        for r in range(mn):
+            for c in range(mn):
+                Dc[r, c] = Db[lb[r], lb[c]]
+        pb = piv[bptr[b]:bptr[b] + mn]
+        if not sparse_lu.dense_lu(Dc, pb):
             return False
-        Xb = X[x_ptr[b]:x_ptr[b] + m * nc].reshape(m, nc)
+        Xf = X[x_ptr[b]:x_ptr[b] + m * nc].reshape(m, nc)
+        if mn < m:                     # (the decoupled rows of H_br are zero: X_n in the first rows)
+            for r in range(mn):
+                for c in range(nc):
+                    Xf[r, c] = Xf[lb[r], c]
+        Xb = X[x_ptr[b]:x_ptr[b] + mn * nc].reshape(mn, nc)
         for c in range(nc):
             nonzero = False
-            for k in range(m):
-                col[k] = Xb[k, c]
-                nonzero = nonzero or col[k] != 0.0
+            for r in range(mn):
+                col[r] = Xb[r, c]
+                nonzero = nonzero or col[r] != 0.0
             if not nonzero:            # (a column of H_br that is zero at this iterate)
                 continue
-            sparse_lu.dense_lu_solve(Db, pb, col[:m])
-            for k in range(m):
-                Xb[k, c] = col[k]
+            sparse_lu.dense_lu_solve(Dc, pb, col[:mn])
+            for r in range(mn):
+                Xb[r, c] = col[r]
         RBb = RB[rb_ptr[b]:rb_ptr[b] + nrow * m].reshape(nrow, m)
         for r in range(nrow):
             for c in range(nc):
                 acc[c] = 0.0
             nonzero = False
-            for k in range(m):
-                a = RBb[r, k]
+            for q in range(mn):
+                a = RBb[r, lb[q]]
                 if a != 0.0:
                     nonzero = True
                     for c in range(nc):
-                        acc[c] += a * Xb[k, c]
+                        acc[c] += a * Xb[q, c]
             if nonzero:
                 at = upd_ptr[b] + r * nc
                 for c in range(nc):
@@ -243,8 +276,9 @@ def _numeric(indptr, indices, data, blk, cat, dst, bptr, Rptr, Cptr, d_ptr, x_pt
 
 
 @lean_kernel
-def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv, y, f_r, col):
-    """y_b = D_b^-1 f_b for every block (y over all unknowns, its r entries unused) and
+def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, Dn, RB, piv, loc, mb, y, f_r, col):
+    """y_b = D_b^-1 f_b for every block (y over all unknowns, its r entries unused: the
+    decoupled unknowns first, f_i / H_ii, then D_nn^-1 (f_n - D_nt y_t)) and
     f_r = f_r - sum_b H_rb y_b. col: scratch of the largest block's size."""
     n = f.shape[0]
     nb = bptr.shape[0] - 1
@@ -253,23 +287,32 @@ def _reduce_rhs(f, blk, rpos, bptr, bidx, Rptr, Ridx, d_ptr, rb_ptr, D, RB, piv,
             f_r[rpos[i]] = f[i]
     for b in range(nb):
         m = bptr[b + 1] - bptr[b]
-        yb = col[:m]
-        for k in range(m):
-            yb[k] = f[bidx[bptr[b] + k]]
-        sparse_lu.dense_lu_solve(D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m), piv[bptr[b]:bptr[b + 1]], yb)
-        for k in range(m):
-            y[bidx[bptr[b] + k]] = yb[k]
+        mn = mb[b]
+        lb = loc[bptr[b]:bptr[b + 1]]
+        Db = D[d_ptr[b]:d_ptr[b] + m * m].reshape(m, m)
+        for q in range(mn, m):
+            a = lb[q]
+            col[q] = f[bidx[bptr[b] + a]] / Db[a, a]
+        for r in range(mn):
+            acc = f[bidx[bptr[b] + lb[r]]]
+            for q in range(mn, m):
+                acc -= Db[lb[r], lb[q]] * col[q]
+            col[r] = acc
+        sparse_lu.dense_lu_solve(Dn[d_ptr[b]:d_ptr[b] + mn * mn].reshape(mn, mn), piv[bptr[b]:bptr[b] + mn], col[:mn])
+        for q in range(m):
+            y[bidx[bptr[b] + lb[q]]] = col[q]
         nrow = Rptr[b + 1] - Rptr[b]
         for r in range(nrow):
             acc = 0.0
-            for k in range(m):
-                acc += RB[rb_ptr[b] + r * m + k] * yb[k]
+            for q in range(m):
+                acc += RB[rb_ptr[b] + r * m + lb[q]] * col[q]
             f_r[rpos[Ridx[Rptr[b] + r]]] -= acc
 
 
 @lean_kernel
-def _back(d_r, y, blk, rpos, bptr, bidx, Cptr, Cidx, x_ptr, X, d):
-    """d: d_r on r, and d_b = y_b - X_b d_r[C_b] on the blocks."""
+def _back(d_r, y, blk, rpos, bptr, bidx, Cptr, Cidx, x_ptr, X, loc, mb, d):
+    """d: d_r on r, and d_b = y_b - X_b d_r[C_b] on the blocks (X_b's rows: the coupled unknowns;
+    the decoupled ones are y_b's)."""
     n = d.shape[0]
     nb = bptr.shape[0] - 1
     for i in range(n):
@@ -277,12 +320,15 @@ def _back(d_r, y, blk, rpos, bptr, bidx, Cptr, Cidx, x_ptr, X, d):
             d[i] = d_r[rpos[i]]
     for b in range(nb):
         m = bptr[b + 1] - bptr[b]
+        mn = mb[b]
         nc = Cptr[b + 1] - Cptr[b]
-        for k in range(m):
-            acc = y[bidx[bptr[b] + k]]
-            for c in range(nc):
-                acc -= X[x_ptr[b] + k * nc + c] * d_r[rpos[Cidx[Cptr[b] + c]]]
-            d[bidx[bptr[b] + k]] = acc
+        for q in range(m):
+            i = bidx[bptr[b] + loc[bptr[b] + q]]
+            acc = y[i]
+            if q < mn:
+                for c in range(nc):
+                    acc -= X[x_ptr[b] + q * nc + c] * d_r[rpos[Cidx[Cptr[b] + c]]]
+            d[i] = acc
 
 
 class Structure:
@@ -372,24 +418,28 @@ class Elimination:
         st = self.structure = structure
         self.Sdata = np.zeros(len(st.Sj))
         self.D, self.X = np.zeros(max(int(st.d_ptr[-1]), 1)), np.zeros(max(int(st.x_ptr[-1]), 1))
+        self.Dn = np.zeros_like(self.D)
         self.RB, self.piv = np.zeros(max(int(st.rb_ptr[-1]), 1)), np.zeros(st.n, np.int64)
+        self.loc, self.mb = np.zeros(max(st.n, 1), np.int64), np.zeros(len(st.bptr) - 1, np.int64)
+        self.coupled = np.zeros(st.n, np.int64)
         self.y, self.f_r = np.zeros(st.n), np.zeros(st.nr)
         self.col, self.acc = np.zeros(st.big_m), np.zeros(st.big_c)     # _numeric's and _reduce_rhs' scratch
         self.factors = sparse_lu.KeptOrder(st.nr, refill, st.column_order)
 
     def solve(self, data, rhs):
         st = self.structure
-        if not _numeric(st.indptr, st.indices, data, st.blk, st.cat, st.dst, st.bptr, st.Rptr, st.Cptr, st.d_ptr,
-                        st.x_ptr, st.rb_ptr, st.upd_ptr, st.upd, self.D, self.X, self.RB, self.piv, self.Sdata,
-                        self.col, self.acc):
+        if not _numeric(st.indptr, st.indices, data, st.blk, st.cat, st.dst, st.bptr, st.bidx, st.Rptr, st.Cptr,
+                        st.d_ptr, st.x_ptr, st.rb_ptr, st.upd_ptr, st.upd, self.D, self.Dn, self.X, self.RB, self.piv,
+                        self.loc, self.mb, self.coupled, self.Sdata, self.col, self.acc):
             return None
         # S's CSR arrays read as CSC are S^T: factorised as they are, S d = f is the transposed solve
         lu = self.factors.factor(st.Sp, st.Sj, self.Sdata, len(self.Sdata))
         if not lu.ok:
             return None
         _reduce_rhs(np.ascontiguousarray(rhs, dtype=float), st.blk, st.rpos, st.bptr, st.bidx, st.Rptr, st.Ridx,
-                    st.d_ptr, st.rb_ptr, self.D, self.RB, self.piv, self.y, self.f_r, self.col)
+                    st.d_ptr, st.rb_ptr, self.D, self.Dn, self.RB, self.piv, self.loc, self.mb, self.y, self.f_r,
+                    self.col)
         d_r = lu.solve(self.f_r, "T")
         d = np.empty(st.n)
-        _back(d_r, self.y, st.blk, st.rpos, st.bptr, st.bidx, st.Cptr, st.Cidx, st.x_ptr, self.X, d)
+        _back(d_r, self.y, st.blk, st.rpos, st.bptr, st.bidx, st.Cptr, st.Cidx, st.x_ptr, self.X, self.loc, self.mb, d)
         return d

@@ -65,6 +65,30 @@ def test_eliminated_solve_matches_the_dense_solve(n_rest, sizes, seed, stored_ze
     assert np.allclose(d, np.linalg.solve(A, b), rtol=1e-9, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed, decoupled", [(5, 3), (6, 6), (7, 7)])
+def test_rows_with_their_diagonal_alone_are_solved_apart(seed, decoupled):
+    """A group's rows whose only nonzero is the diagonal (an inactive multiplier's row, da e_i: a
+    mesh hull's planes) are taken out of its local LU (_numeric): the direction still solves the
+    whole system, with some, most or all of a group's rows so (their off-diagonal entries stored
+    zeros, as in a step problem's fixed pattern; their columns still filled)."""
+    H, A, (bptr, bidx) = _block_structured(40, [7, 7, 7], seed)
+    rng = np.random.default_rng(seed)
+    data = H.data.copy()
+    rows = np.repeat(np.arange(H.shape[0]), np.diff(H.indptr))
+    for g in range(3):
+        for i in rng.choice(bidx[bptr[g]:bptr[g + 1]], decoupled, replace=False):
+            data[(rows == i) & (H.indices != i)] = 0.0
+            A[i, np.arange(A.shape[0]) != i] = 0.0
+    if np.linalg.cond(A) > 1e6:
+        pytest.skip("the draw is ill-conditioned")
+    elimination = be.Elimination(be.structure(H.indptr, H.indices, bptr, bidx), 1.5)
+    b = rng.standard_normal(A.shape[0])
+    d = elimination.solve(data, b)
+    assert list(elimination.mb) == [7 - decoupled] * 3
+    assert np.linalg.norm(A @ d - b) <= SOLVE_TOL * np.linalg.norm(b)
+    assert np.allclose(d, np.linalg.solve(A, b), rtol=1e-9, atol=1e-12)
+
+
 def test_coupled_groups_disable_it_and_a_singular_block_refuses_the_solve():
     H, A, (bptr, bidx) = _block_structured(30, [4, 4], 3, couple=True)
     assert not be.structure(H.indptr, H.indices, bptr, bidx).ok
