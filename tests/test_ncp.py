@@ -341,9 +341,10 @@ def test_sparse_solve_refuses_a_solution_that_does_not_solve():
 
 
 def test_sparse_levenberg_marquardt_step_matches_the_dense_one():
-    """ncp._sparse_lm solves (H^T H + mu I) d = -g through the augmented system [[I, -H], [H^T, mu I]]
-    (no product H^T H): the same step as dense_lm's normal equations, on a random sparse H with a
-    dense block (as a skeleton's rows make) and on a rank-deficient H, where mu alone regularises."""
+    """ncp._sparse_lm solves (H^T H + mu I) d = -g through the quasi-definite system
+    [[I, H], [H^T, -mu I]] (no product H^T H; SuperLU's symmetric mode): the same step as
+    dense_lm's normal equations, on a random sparse H with a dense block (as a skeleton's rows
+    make) and on a rank-deficient H, where mu alone regularises; and its matrix is that system."""
     from implicit_contact.ncp import _sparse_lm, dense_lm
     rng = np.random.default_rng(11)
     n = 60
@@ -358,6 +359,9 @@ def test_sparse_levenberg_marquardt_step_matches_the_dense_one():
         sparse = _sparse_lm(sp.csr_matrix(A), g, mu)
         assert sparse is not None
         np.testing.assert_allclose(sparse, dense, rtol=RTOL_LM_STEP, atol=RTOL_LM_STEP * np.abs(dense).max())
+    from implicit_contact.ncp import _quasi_definite
+    K = _quasi_definite(sp.csr_matrix(H), 0.5).toarray()
+    np.testing.assert_array_equal(K, np.block([[np.eye(n), H], [H.T, -0.5 * np.eye(n)]]))
 
 
 RTOL_LM_STEP = 1e-7     # the two factorisations of an LM step (normal equations squares the condition number)
