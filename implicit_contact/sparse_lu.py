@@ -272,18 +272,16 @@ def solve(n, q, pinv, Lp, Li, Lx, Up, Ui, Ux, b, out, work, transpose):
             out[i] = work[pinv[i]]
 
 
-def column_order(indptr, indices, spec="COLAMD"):
-    """A fill-reducing column order (SuperLU's COLAMD, or with spec="MMD_AT_PLUS_A" its minimum
-    degree of A + A^T) for CSC matrices of this pattern: taken from a strictly diagonally dominant
-    matrix of the pattern plus the diagonal, which SuperLU always factorises (the orderings look
-    at the pattern alone)."""
+def column_order(indptr, indices):
+    """A fill-reducing column order (SuperLU's COLAMD) for CSC matrices of this pattern: taken
+    from a strictly diagonally dominant matrix of the pattern plus the diagonal, which SuperLU
+    always factorises (COLAMD looks at the pattern alone)."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
     n = len(indptr) - 1
     A = sp.csc_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n))
     A = (A + sp.diags(np.diff(indptr) + 1.0, format="csc")).tocsc()
-    options = dict(SymmetricMode=True) if spec == "MMD_AT_PLUS_A" else {}
-    perm_c = spla.splu(A, permc_spec=spec, options=options).perm_c   # column i of A goes to position perm_c[i]
+    perm_c = spla.splu(A, permc_spec="COLAMD").perm_c     # column i of A goes to position perm_c[i]
     q = np.empty(n, np.int64)
     q[perm_c] = np.arange(n)
     return q
@@ -349,18 +347,9 @@ class SparseLU:
 class KeptOrder:
     """The factorisations of one solve's matrices of one pattern (CSR arrays, read as CSC), in a
     column order kept while the factors stay within refill times the entries that order first
-    gave: first_order() at the start (None: the better of two orders of the first matrix's
-    nonzeros, below), a new order of the current nonzeros once the factors outgrow it (the
-    nonzeros of a Newton matrix change with the active pieces of its FB rows). One Workspace
-    (two while orders are compared); the factors' capacity is kept.
-
-    An order made here is COLAMD's or the minimum degree of A + A^T (both SuperLU's), whichever
-    gives the first matrix fewer entries in its factors (COLAMD's on a tie). A robot's Newton
-    matrix couples each skeleton's velocities with every contact on it in both directions, and
-    there the symmetric order fills in half as much: example-robot-data's anymal-kinova, 200
-    Newton matrices at n ~ 260, factors of 9330 and 9210 entries with COLAMD, 5419 and 6531 with
-    minimum degree, 1.28 -> 0.46 ms a Newton step; icub_reduced (n ~ 300) 0.62 -> 0.55 ms
-    (2026-12-07)."""
+    gave: first_order() at the start (None: COLAMD of the first matrix's nonzeros), COLAMD of
+    the current nonzeros once the factors outgrow it (the nonzeros of a Newton matrix change
+    with the active pieces of its FB rows). One Workspace; the factors' capacity is kept."""
 
     def __init__(self, n, refill, first_order=None):
         self.n, self.refill, self.first_order = n, refill, first_order
@@ -368,45 +357,23 @@ class KeptOrder:
         self.reordered = False       # (an order of the nonzeros replaced first_order's)
         self.capacity = 0
         self.workspace = Workspace(n)
-        self.spare = None            # the second order's Workspace
 
     def factor(self, indptr, indices, data, entries) -> SparseLU:
         """SparseLU of the matrix (entries: its count of nonzeros, for the factors' first room)."""
         n = self.n
-        self.capacity = max(self.capacity, 3 * entries + n)
         if self.order is None:
-            self.fill = None
             if self.first_order is not None and not self.reordered:
                 self.order = self.first_order()
             else:
-                return self._better_order(indptr, indices, data)
+                ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
+                m = nonzero_pattern(indptr, indices, data, ptr, idx)
+                self.order = column_order(ptr, idx[:m])
+            self.fill = None
+        self.capacity = max(self.capacity, 3 * entries + n)
         lu = SparseLU(indptr, indices, data, self.order, capacity=self.capacity, workspace=self.workspace)
         self.capacity = max(self.capacity, lu.nnz)
         if lu.ok and self.fill is None:
             self.fill = lu.nnz
         elif lu.ok and lu.nnz > self.refill * self.fill + n:
             self.order, self.reordered = None, True      # the nonzeros moved on: their order next time
-        return lu
-
-    def _better_order(self, indptr, indices, data) -> SparseLU:
-        """The matrix factorised in both orders of its nonzeros (class docstring); keeps the one
-        with fewer entries in its factors and returns its SparseLU."""
-        n = self.n
-        ptr, idx = np.empty(n + 1, np.int64), np.empty(len(data), np.int64)
-        m = nonzero_pattern(indptr, indices, data, ptr, idx)
-        best = None
-        for spec in ("COLAMD", "MMD_AT_PLUS_A"):
-            if best is not None and self.spare is None:
-                self.spare = Workspace(n)
-            ws = self.workspace if best is None else self.spare
-            q = column_order(ptr, idx[:m], spec)
-            lu = SparseLU(indptr, indices, data, q, capacity=self.capacity, workspace=ws)
-            self.capacity = max(self.capacity, lu.nnz)
-            if best is None or (lu.ok and (not best[1].ok or lu.nnz < best[1].nnz)):
-                if best is not None:
-                    self.workspace, self.spare = self.spare, self.workspace     # (its factors live there)
-                best = (q, lu)
-        self.order, lu = best
-        if lu.ok:
-            self.fill = lu.nnz
         return lu
