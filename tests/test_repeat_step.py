@@ -8,6 +8,7 @@ repeat path must have taken most steps (else this test would test nothing). Orde
 (_split_step) has its own repeat path for stage 1 (_split_repeat, the same kernel with stage 1's
 tables and frames at l), checked the same way on the scenes of its work-precision study.
 """
+import dartpy as dart
 import numpy as np
 import pytest
 
@@ -16,7 +17,7 @@ from scenes import disc_on_quasi_rigid_plane as quasi
 from scenes import disc_rolling, ellipsoid_rocking
 from scenes import sphere_on_two_spheres as spheres
 from test_articulated import _pendulum_world
-from test_rigid3d import _dart_box, _ground, _world
+from test_rigid3d import _dart_box, _free_body, _ground, _world
 from test_support import _stepper as _support_stepper, _world as _support_world
 
 MIN_REPEATED = 0.5     # fraction of the steps the repeat path must take in these steady scenes
@@ -224,3 +225,41 @@ def test_the_repeated_steps_report_is_a_step_report_like_any_other():
     assert isinstance(report, ic.StepReport) and report.success and report.status == "CONVERGED"
     assert report.spent == report.iterations and report.unknowns > 0
     assert report.time == pytest.approx(world.getTime()) and report.message.startswith("Converged in ")
+
+
+def test_a_general_steps_reports_read_later_are_the_ones_read_at_once():
+    """The general step's contact reports are made when first read (stepper._LazyContacts, since
+    _solution); its problem is cached and refreshed by the steps after it, with their own specs.
+    A spinning sliding ball with torsional friction whose e_r changes every step (the same rows,
+    so the same cached problem, another spec list): its reports, read after 12 more steps, must
+    equal those read as each step returned, and p_r must follow each step's own e_r."""
+    def run(read_at_once):
+        world = _world(0.01)
+        skel, body = _free_body(world, "ball", 2.0, [0.072] * 3, [0.0, 0.0, 0.3])
+        node = body.createShapeNode(dart.dynamics.SphereShape(0.3))
+        node.createCollisionAspect()
+        node.createDynamicsAspect().setFrictionCoeff(0.5)
+        skel.setVelocities([0.0, 0.0, 8.0, 1.0, 0.0, 0.0])
+        ground = _ground(world)
+        stepper = ic.ImplicitContactStepper(world)
+        stepper._repeat_step = lambda h, t0: None          # every step a general step
+        kept, general = [], []
+        for k in range(12):
+            stepper.set_pair_friction(body, ground, ic.Friction(mu=0.5, e_r=0.01 * (1 + k % 3)))
+            report = stepper.step()
+            general.append(isinstance(report.contacts, stepper_module._LazyContacts))
+            kept.append([(c.p_n, c.p_t, c.p_o, c.p_r, c.sigma, c.slip, c.gap, tuple(c.a1), tuple(c.normal))
+                         for c in report.contacts] if read_at_once else report)
+        if not read_at_once:
+            kept = [[(c.p_n, c.p_t, c.p_o, c.p_r, c.sigma, c.slip, c.gap, tuple(c.a1), tuple(c.normal))
+                     for c in report.contacts] for report in kept]
+        return kept, general
+
+    from implicit_contact import stepper as stepper_module
+    at_once, general = run(True)
+    later, _ = run(False)
+    assert all(general), "the general step's reports should be made lazily"
+    assert all(len(r) == 1 and r[0][0] > 0.0 for r in at_once[2:]), "the ball should touch from the third step on"
+    assert later == at_once
+    torsion = [r[0][3] for r in at_once[2:]]
+    assert len({abs(p) for p in torsion}) > 1 and all(p != 0.0 for p in torsion)
