@@ -980,8 +980,11 @@ def solve_mcp(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray
         elif req == REQ_HG:
             if isinstance(H, _SparsePattern):
                 H = H.matrix()
-            Hg = H @ buf.g
-            buf.fbuf[F_HGSQ] = float(Hg @ Hg)
+            if sp.issparse(H):
+                Hg = H @ buf.g
+                buf.fbuf[F_HGSQ] = float(Hg @ Hg)
+            else:                             # (the compiled drivers' kernel: the same round-off)
+                buf.fbuf[F_HGSQ] = dense_hg_sq(H, buf.g)
     return result_from_buffers(buf, options)
 
 
@@ -990,7 +993,7 @@ PROXIMAL_OUTER = 100    # solve_proximal's outer steps at most (each takes one i
 
 def solve_proximal(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], object],
                    x0, lower, upper, weight, options: SolverOptions = SolverOptions(),
-                   max_outer: int = PROXIMAL_OUTER) -> McpResult:
+                   max_outer: int = PROXIMAL_OUTER, inner=None) -> McpResult:
     """MCP(F, l, u) by the proximal point method (R. T. Rockafellar, SIAM J. Control Optim. 14,
     1976): x_{k+1} solves MCP(F + W_k (. - x_k), l, u) by :func:`solve_mcp` from x_k, until x_{k+1}
     solves MCP(F, l, u) itself (natural residual <= options.tol). W_k = diag(min(weight, r_k)),
@@ -1013,6 +1016,10 @@ def solve_proximal(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
     is the last outer step's (steps and merit histories concatenated) with F and the residual of
     the unregularised problem: CONVERGED as soon as that residual is <= tol; an inner solve that
     fails ends it with that failure; MAX_ITERATIONS when the outer steps or the iterations run out.
+
+    inner: None, or inner(x_k, W_k, options) -> the McpResult of solve_mcp on MCP(F + W_k (. - x_k),
+    l, u) from x_k, computed faster by the caller (step_solver's compiled dense solve); it must be
+    that solve's result.
     """
     x, lo, hi = check_problem(x0, lower, upper, options)
     n = x.shape[0]
@@ -1040,16 +1047,17 @@ def solve_proximal(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
                 return (J + sp.diags(wk, format="csr")).tocsr()
             return np.asarray(J, dtype=float) + np.diag(wk)
 
-        inner = solve_mcp(fun_k, jac_k, centre, lo, hi, replace(options, max_iterations=left))
-        iterations, steps, nfev, njev = (iterations + inner.iterations, steps + inner.steps,
-                                         nfev + inner.nfev + 1, njev + inner.njev)
-        history.extend(inner.merit_history)
-        x = inner.x
+        solved = (solve_mcp(fun_k, jac_k, centre, lo, hi, replace(options, max_iterations=left)) if inner is None
+                  else inner(centre, wk, replace(options, max_iterations=left)))
+        iterations, steps, nfev, njev = (iterations + solved.iterations, steps + solved.steps,
+                                         nfev + solved.nfev + 1, njev + solved.njev)
+        history.extend(solved.merit_history)
+        x = solved.x
         F = _check_f(fun(x.copy()), n)
         residual = _natural_residual(x, F, lo, hi)
-        if inner.status is not Status.CONVERGED:
-            return McpResult(x, F, inner.status, iterations, residual, tuple(history),
-                             f"Proximal step {outer + 1} failed: {inner.message}", steps, nfev, njev)
+        if solved.status is not Status.CONVERGED:
+            return McpResult(x, F, solved.status, iterations, residual, tuple(history),
+                             f"Proximal step {outer + 1} failed: {solved.message}", steps, nfev, njev)
         if residual <= options.tol:
             return McpResult(x, F, Status.CONVERGED, iterations, residual, tuple(history),
                              f"Converged in {outer + 1} proximal steps ({iterations} iterations): natural "

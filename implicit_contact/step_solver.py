@@ -26,7 +26,7 @@ import numpy as np
 
 from . import bundles
 from . import ncp
-from ._jit import FALSE, TRUE, kernel
+from ._jit import FALSE, TRUE, kernel, lean_kernel
 from .formulation import StepProblem
 from .layout import closest_point_blocks
 from .rows.assemble import assemble
@@ -39,6 +39,20 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
                  history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws):
     """One solve of a dense step problem; the outcome in the ncp buffers, the pairs' reports at
     the final iterate in rep."""
+    no_f = np.zeros(0)
+    _solve_regularised(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                       loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
+                       history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
+                       no_f, no_f)
+
+
+@kernel
+def _solve_regularised(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
+                       loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
+                       history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
+                       weight, centre):
+    """_solve_dense of F(x) + weight (x - centre), Jacobian J + diag(weight) (_regularise; weight
+    empty: F itself): ncp.solve_proximal's inner solves, one compiled call each (solve_regularised)."""
     no_i = np.zeros(0, np.int64)
     no_f = np.zeros(0)
     slot_off = np.zeros(loc_off.shape[0], np.int64)
@@ -47,21 +61,40 @@ def _solve_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i,
     assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
              loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
              st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
+    _regularise(weight, centre, xt, Ft, J, FALSE)
     if ncp.first_point(lo, hi, opt, x, F, xt, Ft, Phi, history, info, fbuf, work) == ncp.ITERATE:
         _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                       loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
                       history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
-                      no_i, no_f, slot_off)
+                      no_i, no_f, slot_off, weight, centre)
+
+
+@lean_kernel
+def _regularise(weight, centre, x, F, J, jac):
+    """F += weight (x - centre), or (jac) J += diag(weight), in the order of ncp.solve_proximal's
+    Python expressions F(z) + wk * (z - centre) and J + np.diag(wk) (every entry plus its diagonal
+    matrix's, 0.0 off it), so that the compiled inner solve is theirs bit for bit; nothing when
+    weight is empty."""
+    if weight.shape[0] == 0:
+        return
+    if jac:
+        n = J.shape[0]
+        for i in range(n):
+            for j in range(n):
+                J[i, j] = J[i, j] + (weight[i] if i == j else 0.0)
+    else:
+        for i in range(F.shape[0]):
+            F[i] = F[i] + weight[i] * (x[i] - centre[i])
 
 
 @kernel
 def _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                   loc_idx, loc_off, scale, x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz,
                   history, steps, info, fbuf, work, J, H, rep, st_R, st_p, st_w, st_vo, st_T, FL, JL, ws,
-                  no_i, no_f, slot_off):
-    """_solve_dense's Newton iterations after its first point, with its empty tables no_i, no_f
-    and its slot offsets (a kernel of its own: a kernel that iterates a generator pays ~0.65 us
-    on entry, also when it returns before the loop)."""
+                  no_i, no_f, slot_off, weight, centre):
+    """_solve_regularised's Newton iterations after its first point, with its empty tables no_i,
+    no_f and its slot offsets (a kernel of its own: a kernel that iterates a generator pays ~0.65
+    us on entry, also when it returns before the loop)."""
     Fj = np.empty(x0.shape[0])
     for req in ncp.mcp_iterations(x0, lo, hi, opt, x, F, xt, Ft, Phi, Phit, d, g, da, db, zk, Jz, history,
                                   steps, info, fbuf, work, TRUE):
@@ -69,10 +102,12 @@ def _newton_dense(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, xt, Ft, J, no_f, rep,
                      st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, FALSE, FALSE)
+            _regularise(weight, centre, xt, Ft, J, FALSE)
         elif req == ncp.REQ_J:
             assemble(body_i, body_f, body_jac, fpar, sk_i, sk_M, v0, hforce, pair_i, pair_f, sup_i, sup_f,
                      loc_idx, loc_off, no_i, slot_off, scale, no_f, x, Fj, J, no_f, rep,
                      st_R, st_p, st_w, st_vo, st_T, FL, JL, ws, TRUE, FALSE)
+            _regularise(weight, centre, x, Fj, J, TRUE)
             info[ncp.I_BAD] = ncp.nonfinite(J)
         else:
             ncp.dense_request(req, J, zk, Jz, da, db, Phi, H, g, d, info, fbuf)
@@ -172,6 +207,27 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
     return result
 
 
+def _solve_regularised_once(problem: StepProblem, x0, weight, centre, options: ncp.SolverOptions) -> ncp.McpResult:
+    """MCP(F + weight (. - centre), l, u) from x0 on a dense problem, one compiled call
+    (_solve_regularised): ncp.solve_proximal's inner solve, bit for bit the one its Python driver
+    makes (tests/test_indeterminate_impulses.py). The case: the grasp study's squeezed part, whose
+    proximal solves took 1-2 ms an iteration in Python against ~0.1 ms compiled."""
+    x0 = np.ascontiguousarray(x0, dtype=float)
+    buf, J, H, opt, _, _ = _buffers(problem, options)
+    t = problem.tables
+    R, p, w, vo, T, FL, JL, ws = problem._work
+    _solve_regularised(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
+                       t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, problem.lower, problem.upper, opt,
+                       buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
+                       buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL,
+                       JL, ws, np.ascontiguousarray(weight, dtype=float), np.ascontiguousarray(centre, dtype=float))
+    result = ncp.result_from_buffers(buf, options)
+    # (the pairs' reports are F's, without the regularisation: those of the final iterate)
+    problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
+    problem._key_f = problem._key_j = None
+    return result
+
+
 def _buffers(problem: StepProblem, options: ncp.SolverOptions):
     """(ncp.Buffers, J, H, options array, options, their bundles.Solver) of one solve, kept with the
     problem per options."""
@@ -240,12 +296,18 @@ def solve(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool = Tru
     """The step's MCP from z0, polished (see the module docstring). sync: copy the pairs' k1 and
     tangent axes from their specs first (False: the tables already hold them). proximal: by
     ncp.solve_proximal with impulse_weights (impulses not unique: recovery.indeterminate_impulses),
-    from Python (the rows compiled, the solver's driver not). stop: ncp.solve_mcp's stop test, on a
+    its outer steps from Python, each inner solve of a dense problem one compiled call. stop: ncp.solve_mcp's stop test, on a
     sparse problem (a dense solve is one compiled call and runs to its end); a solve it ends
     (HANDED_OVER) is returned as it is."""
     if proximal:
+        inner = None
+        if not problem._sparse:
+            problem._sync()
+
+            def inner(centre, weight, opts):
+                return _solve_regularised_once(problem, centre, weight, centre, opts)
         result = ncp.solve_proximal(problem.fun, problem.jac, z0, problem.lower, problem.upper,
-                                    impulse_weights(problem), options)
+                                    impulse_weights(problem), options, inner=inner)
     else:
         result = _solve_once(problem, z0, options, sync, stop)
         if result.status is ncp.Status.HANDED_OVER:

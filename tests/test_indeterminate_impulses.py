@@ -117,6 +117,36 @@ def test_the_proximal_re_solve_lands_the_sliding_table_without_halving(monkeypat
     assert reports[LANDING].substeps == 2
 
 
+def test_the_compiled_proximal_solve_is_the_python_drivers_bit_for_bit(monkeypatch):
+    """step_solver.solve(proximal=True) on a dense problem solves each regularised problem of
+    ncp.solve_proximal in one compiled call (step_solver._solve_regularised); it must be the
+    Python driver's solve (ncp.solve_mcp on F + W (. - x_k) and J + diag(W)) bit for bit: the
+    landing table's proximal re-solves, each repeated both ways from the same start."""
+    captured = []
+    original = step_solver.solve
+
+    def capture(problem, z0, options, sync=True, proximal=False, stop=None):
+        result = original(problem, z0, options, sync, proximal, stop)
+        if proximal:
+            assert not problem._sparse
+            problem._sync()
+            python = ncp.solve_proximal(problem.fun, problem.jac, z0, problem.lower, problem.upper,
+                                        step_solver.impulse_weights(problem), options)
+            compiled = ncp.solve_proximal(
+                problem.fun, problem.jac, z0, problem.lower, problem.upper, step_solver.impulse_weights(problem),
+                options, inner=lambda c, w, o: step_solver._solve_regularised_once(problem, c, w, c, o))
+            captured.append((python, compiled))
+        return result
+    monkeypatch.setattr(step_solver, "solve", capture)
+    _land_and_rest(LANDING + 1)
+    assert captured, "the landing should take a proximal re-solve"
+    for python, compiled in captured:
+        np.testing.assert_array_equal(compiled.x, python.x)
+        assert (compiled.status, compiled.iterations, compiled.steps, compiled.nfev, compiled.njev) == \
+            (python.status, python.iterations, python.steps, python.nfev, python.njev)
+        assert compiled.merit_history == python.merit_history and python.iterations > 0
+
+
 def test_without_the_proximal_re_solve_or_the_endgame_the_landing_is_halved(monkeypatch, sticking_start):
     """The same scene with indeterminate_impulses left out of the recoveries, and without the
     solver's min-map endgame (step_solver.ENDGAME_RESIDUAL), which lands it without halving on its
