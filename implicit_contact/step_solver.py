@@ -195,16 +195,10 @@ def _solve_once(problem: StepProblem, z0, options: ncp.SolverOptions, sync: bool
         raise ValueError(f"the start of a step's solve must be a finite vector of {len(problem.lower)} entries")
     if sync:
         problem._sync()
-    buf, J, H, opt, _, _ = _buffers(problem, options)
-    t = problem.tables
-    R, p, w, vo, T, FL, JL, ws = problem._work
-    _solve_dense(t.body_i, t.body_f, t.body_jac, t.fpar, t.sk_i, t.sk_M, t.v0, t.hforce, t.pair_i, t.pair_f,
-                 t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, problem.lower, problem.upper, opt,
-                 buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
-                 buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL, JL, ws)
-    result = ncp.result_from_buffers(buf, options)
-    problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
-    return result
+    return _dense_solve(problem, x0, options, _NO_WEIGHT, _NO_WEIGHT)
+
+
+_NO_WEIGHT = np.zeros(0)
 
 
 def _solve_regularised_once(problem: StepProblem, x0, weight, centre, options: ncp.SolverOptions) -> ncp.McpResult:
@@ -212,7 +206,13 @@ def _solve_regularised_once(problem: StepProblem, x0, weight, centre, options: n
     (_solve_regularised): ncp.solve_proximal's inner solve, bit for bit the one its Python driver
     makes (tests/test_indeterminate_impulses.py). The case: the grasp study's squeezed part, whose
     proximal solves took 1-2 ms an iteration in Python against ~0.1 ms compiled."""
-    x0 = np.ascontiguousarray(x0, dtype=float)
+    return _dense_solve(problem, np.ascontiguousarray(x0, dtype=float), options,
+                        np.ascontiguousarray(weight, dtype=float), np.ascontiguousarray(centre, dtype=float))
+
+
+def _dense_solve(problem: StepProblem, x0, options: ncp.SolverOptions, weight, centre) -> ncp.McpResult:
+    """_solve_regularised on a dense problem's tables and kept buffers (weight empty: _solve_dense's
+    solve); the pairs' reports are left at the final iterate (F's: the regularisation adds none)."""
     buf, J, H, opt, _, _ = _buffers(problem, options)
     t = problem.tables
     R, p, w, vo, T, FL, JL, ws = problem._work
@@ -220,11 +220,9 @@ def _solve_regularised_once(problem: StepProblem, x0, weight, centre, options: n
                        t.sup_i, t.sup_f, t.loc_idx, t.loc_off, t.scale, x0, problem.lower, problem.upper, opt,
                        buf.x, buf.F, buf.xt, buf.Ft, buf.Phi, buf.Phit, buf.d, buf.g, buf.da, buf.db, buf.zk, buf.Jz,
                        buf.history, buf.steps, buf.info, buf.fbuf, buf.work, J, H, problem._rep, R, p, w, vo, T, FL,
-                       JL, ws, np.ascontiguousarray(weight, dtype=float), np.ascontiguousarray(centre, dtype=float))
+                       JL, ws, weight, centre)
     result = ncp.result_from_buffers(buf, options)
-    # (the pairs' reports are F's, without the regularisation: those of the final iterate)
     problem._rep_at, problem._reports_np = (result.x.copy() if np.isfinite(result.residual) else None), None
-    problem._key_f = problem._key_j = None
     return result
 
 
