@@ -1554,10 +1554,9 @@ class ImplicitContactStepper:
         """(the contact reports, made when first read (_LazyContacts), the memory of the next step)
         of a solved step. The case for laziness: 100 superquadrics in a box, ~175 pairs a landing
         step, whose reports took ~3 ms of a ~78 ms step that nobody reads in a benchmark."""
-        z = np.array(z, dtype=float)
-        problem._evaluated_at(z)
-        contacts = _LazyContacts(self, problem, z, specs, problem._rep.copy())
-        return contacts, PairMemory(problem, z, specs)
+        memory = PairMemory(problem, z, specs)
+        # (the reports read the memory's copies of z and of the pairs' reports, as on the repeat path)
+        return _LazyContacts(self, problem, memory.z, specs, memory.rep), memory
 
     def _commit_world(self, h):
         """_commit of the solved velocities repeat_kernels.step left in the world buffers (V_solved,
