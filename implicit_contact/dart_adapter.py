@@ -679,6 +679,22 @@ def read_body(body: BodyRecord, T_out, J_out=None) -> None:
 _ORIGIN = np.zeros(3)
 
 
+def origin_and_jacobian(body: BodyRecord):
+    """(origin p (3,), DART's world Jacobian of the origin (6, k), angular rows first) of a mobile
+    body now. A FREE body's are its positions' last three and I6 (check_free_joint_convention):
+    exactly DART's p, and the Jacobian the stepper's rows take for it (DART's own carries
+    round-off up to 2e-15), without the two calls into DART (~10 us of a rocking ellipsoid's
+    order-2 step)."""
+    if body.kind == FREE:
+        return body.skeleton.getPositions()[3:6], _EYE6
+    T = body.body_node.getTransform().matrix()
+    return T[:3, 3].copy(), body.skeleton.getWorldJacobian(body.body_node, _ORIGIN)
+
+
+_EYE6 = np.eye(6)
+_EYE6.flags.writeable = False
+
+
 def body_pose(body: BodyRecord):
     T = body.body_node.getWorldTransform().matrix()
     return T[:3, :3].copy(), T[:3, 3].copy()

@@ -231,24 +231,18 @@ class Stage2:
         self.u = np.zeros(at)
         self.hf = np.zeros(at)
         self._blocks = np.array(blocks, np.int64).reshape(-1, 2)
-        for (c, k), (M, u, hf) in zip(blocks, skeletons):
-            self.M[c:c + k, c:c + k] = M
-            self.u[c:c + k], self.hf[c:c + k] = u, hf
-        self.scale = np.array([1e300 if m <= 1e-300 else 1.0 / m for m in self.M.diagonal().tolist()])   # (NaN stays)
         everything = self.pairs
         npairs, nb = len(everything), len(bodies)
-        bk = np.array([b[1].shape[1] for b in bodies], np.int64)
-        kmax = max(1, int(bk.max())) if nb else 1
-        bcol = np.array([b[0] for b in bodies], np.int64)
-        bJ = np.zeros((nb, 6, kmax))
-        bp = np.zeros((nb, 3))
-        for i, (_, J, p) in enumerate(bodies):
-            bJ[i, :, :J.shape[1]], bp[i] = J, p
-        ends = np.array([cp.bodies for cp in everything], np.int64).reshape(npairs, 2)
-        a = np.array([cp.a for cp in everything], float).reshape(npairs, 2, 3)
-        frame = np.array([(cp.n, cp.t, cp.o) for cp in everything], float).reshape(npairs, 3, 3)
+        self._bk = np.array([b[1].shape[1] for b in bodies], np.int64)
+        kmax = max(1, int(self._bk.max())) if nb else 1
+        self._bcol = np.array([b[0] for b in bodies], np.int64)
+        self._bJ = np.zeros((nb, 6, kmax))
+        self._bp = np.zeros((nb, 3))
+        self._ends = np.array([cp.bodies for cp in everything], np.int64).reshape(npairs, 2)
+        self._a = np.zeros((npairs, 2, 3))
+        self._frame = np.zeros((npairs, 3, 3))
         G = np.zeros((npairs, 4, at))
-        rv.velocity_rows(ends, a, frame, bcol, bk, bJ, bp, G)
+        self._geometry(skeletons, bodies, everything, G)
         keep = [i for i, cp in enumerate(everything) if not cp.known]
         if len(keep) == npairs:
             self.G = G
@@ -261,6 +255,7 @@ class Stage2:
         npairs = len(self.pairs)
         self.pi = np.zeros((npairs, rv.NVI), np.int64)
         self.pf = np.zeros((npairs, rv.NVF))
+        self._pair_parameters()
         lo, hi = [-np.inf] * at, [np.inf] * at
         parent, left = -1, 0
         for k, cp in enumerate(self.pairs):
@@ -269,7 +264,6 @@ class Stage2:
             ns = 1 if cp.friction else 0
             self.pi[k] = (at, nt, nr, ns, cp.vertices, int(cp.core_open), int(cp.layered_patch),
                           parent if left > 0 else -1)
-            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1, cp.load, cp.damp)
             left -= 1
             if cp.vertices:            # (a layered patch's vertices refer to its point's column)
                 parent, left = (at if cp.layered_patch else -1), cp.vertices
@@ -291,6 +285,52 @@ class Stage2:
         self.n = at
         self.lower, self.upper = np.array(lo, float), np.array(hi, float)
         self._F, self._J = np.zeros(at), np.zeros((at, at))
+        # rigid points only, no joint rows: refresh() can take the next step's stage 2 in place
+        self._plain = nj == 0 and len(keep) == len(everything) and not any(cp.vertices or cp.layered
+                                                                            for cp in self.pairs)
+
+    def refresh(self, skeletons, bodies, pairs) -> bool:
+        """Take the stage 2 of (skeletons, bodies, pairs), as __init__ reads them, in place when its
+        structure is this one's: the same skeleton blocks and bodies, the same pairs between the
+        same bodies with the same rows, rigid points only, no joint rows (a rolling or rocking body
+        step after step: __init__ was a sixth of its split step). False, unchanged, otherwise.
+        The arrays are then what __init__ would make of them, entry for entry."""
+        if (not self._plain or len(pairs) != len(self.pairs) or len(bodies) != len(self._bcol)
+                or len(skeletons) != len(self._blocks)):
+            return False
+        for cp, old in zip(pairs, self.pairs):
+            if (cp.known or cp.vertices or cp.layered or cp.bodies != old.bodies or cp.dim != old.dim
+                    or cp.friction != old.friction or (cp.e_r > 0.0) != (old.e_r > 0.0)):
+                return False
+        for (_, k), (M, _, _) in zip(self._blocks.tolist(), skeletons):
+            if len(M) != k:
+                return False
+        for (col, J, _), c, k in zip(bodies, self._bcol.tolist(), self._bk.tolist()):
+            if col != c or J.shape[1] != k:
+                return False
+        self.pairs = list(pairs)
+        self._geometry(skeletons, bodies, self.pairs, self.G)
+        self._pair_parameters()
+        return True
+
+    def _geometry(self, skeletons, bodies, pairs, G):
+        """M, u, h/2 f and the row scale of the skeletons, the bodies' Jacobians and origins, the
+        pairs' points and frames, and their rows G (rows/velocity.py) over all of pairs."""
+        for (c, k), (M, u, hf) in zip(self._blocks.tolist(), skeletons):
+            self.M[c:c + k, c:c + k] = M
+            self.u[c:c + k], self.hf[c:c + k] = u, hf
+        self.scale = np.array([1e300 if m <= 1e-300 else 1.0 / m for m in self.M.diagonal().tolist()])   # (NaN stays)
+        for i, (_, J, p) in enumerate(bodies):
+            self._bJ[i, :, :J.shape[1]], self._bp[i] = J, p
+        for i, cp in enumerate(pairs):
+            self._a[i, 0], self._a[i, 1] = cp.a
+            self._frame[i, 0], self._frame[i, 1], self._frame[i, 2] = cp.n, cp.t, cp.o
+        rv.velocity_rows(self._ends, self._a, self._frame, self._bcol, self._bk, self._bJ, self._bp, G)
+
+    def _pair_parameters(self):
+        """pf (rows/velocity.py) of the pairs."""
+        for k, cp in enumerate(self.pairs):
+            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1, cp.load, cp.damp)
 
     def fun(self, x):
         rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self.jg, self.ju, self.jk,

@@ -288,6 +288,7 @@ class ImplicitContactStepper:
         self._problems = {}        # persistent step problems, by layout signature and bodies
         self._ctx = None           # what the last step leaves for _repeat_step
         self._stage2_solver = None  # (options.solver, order 2's stage-2 options: _stage2_step)
+        self._stage2_kept = None    # (the last step's rattle.Stage2, refreshed in place when it can be: _stage2)
         self._coriolis = np.empty((6, 6))   # (_stage1_tables' workspace)
         self._midpoint = None      # cache of _trapezoidal_skeletons
         self._retry_solver = None  # the solver options of retried substeps (see _solve)
@@ -989,10 +990,9 @@ class ImplicitContactStepper:
                     ends.append(-1)
                     continue
                 if b not in index:
-                    T, J = np.empty((4, 4)), np.empty((6, len(u[rec.skeleton_index])))
-                    adapter.read_body(rec, T, J)
+                    p, J = adapter.origin_and_jacobian(rec)
                     index[b] = len(bodies)
-                    bodies.append((vcol[rec.skeleton_index], J, T[:3, 3].copy()))
+                    bodies.append((vcol[rec.skeleton_index], J, p))
                 ends.append(index[b])
             R1 = np.zeros(4)
             R1[0] = p_n
@@ -1048,7 +1048,11 @@ class ImplicitContactStepper:
                     g[vcol[s]:vcol[s] + k] = rows.G[r]
                     jrows.append((s, r))
                     jdata.append((g, full.unit[r], rows.lower[r], rows.upper[r], rows.unit[r] * lam1[r]))
-        return rattle.Stage2(skeletons, bodies, cps, jdata), closed, jrows
+        kept = self._stage2_kept
+        if not jdata and kept is not None and kept.refresh(skeletons, bodies, cps):
+            return kept, closed, jrows
+        self._stage2_kept = rattle.Stage2(skeletons, bodies, cps, jdata)
+        return self._stage2_kept, closed, jrows
 
     def _reduced_mass(self, spec) -> float:
         """m1 m2 / (m1 + m2) of a pair's mobile bodies (one mobile body: its mass)."""
