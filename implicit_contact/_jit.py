@@ -37,7 +37,7 @@ import numpy as np
 # a kernel module missing here could be served from a stale cache after an edit.
 KERNEL_MODULES = ("_jit.py", "shape_kernels.py", "rows/__init__.py", "rows/bodies.py", "rows/contact.py",
                   "rows/dynamics.py", "rows/support.py", "rows/velocity.py", "rows/assemble.py", "rows/tables.py", "rows/checks.py", "ncp.py", "sparse_lu.py", "block_elimination.py", "closest.py",
-                  "step_solver.py", "step_kernels.py", "memory.py", "repeat_kernels.py", "patch.py", "landing.py",
+                  "step_solver.py", "step_kernels.py", "memory.py", "repeat_kernels.py", "patch.py", "landing.py", "rattle.py",
                   "bundles.py")   # the bundles' types are in the signatures of the kernels that take them
 
 _PACKAGE = os.path.dirname(os.path.abspath(__file__))

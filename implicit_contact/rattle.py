@@ -127,6 +127,7 @@ import math
 import numpy as np
 
 from . import ncp
+from ._jit import lean_kernel
 from . import step_kernels
 from . import step_solver
 from .memory import _tangents
@@ -142,26 +143,28 @@ def stiff_layer(compliance, h, mass) -> bool:
     return h * compliance.c_n > 2.0 * STIFF_DAMPER * mass
 
 
-def start_frame(a1, a2, normal, axis, p1, p2, dim) -> np.ndarray:
-    """A pair's frame at l as rows/contact.py's Q_N0.. columns read it (15,): n (unit, body 1 into
-    body 2), t, o by the pair's Gram-Schmidt on its tangent axis (memory._tangents, as
+@lean_kernel
+def start_frame(a1, a2, normal, axis, p1, p2, dim, out):
+    """A pair's frame at l as rows/contact.py's Q_N0.. columns read it, into out (15,): n (unit,
+    body 1 into body 2), t, o by the pair's Gram-Schmidt on its tangent axis (memory._tangents, as
     rows/contact.py), levers a1 - p1, a2 - p2 (p_b: the body origins at l). a1, a2, normal: dim
-    entries; p1, p2: 3. (Scalar arithmetic: this runs for every split pair of every step.)"""
-    out = np.zeros(15)
-    nx, ny = float(normal[0]), float(normal[1])
-    nz = float(normal[2]) if dim == 3 else 0.0
+    entries; p1, p2, axis: 3 (axis unread in 2D). (Compiled: this runs for every split pair of
+    every step.)"""
+    for i in range(15):
+        out[i] = 0.0
+    nx, ny = normal[0], normal[1]
+    nz = normal[2] if dim == 3 else 0.0
     s = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
-    out[0:3] = (nx * s, ny * s, nz * s)
+    out[0], out[1], out[2] = nx * s, ny * s, nz * s
     if dim == 3:
-        _tangents(out[0:3], np.asarray(axis, float), out[3:6], out[6:9])
+        _tangents(out[0:3], axis, out[3:6], out[6:9])
     else:
-        out[3:5] = (-out[1], out[0])
+        out[3], out[4] = -out[1], out[0]
     for i in range(dim):
         out[9 + i] = a1[i] - p1[i]
         out[12 + i] = a2[i] - p2[i]
     if dim == 2:
         out[11], out[14] = -p1[2], -p2[2]
-    return out
 
 
 @dataclass

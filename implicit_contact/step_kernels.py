@@ -405,6 +405,19 @@ def free_coriolis_jacobian(M, w, out):
 
 
 @kernel
+def free_stage1_tables(M, w, F, h, C, M1, F1):
+    """Order 2's stage-1 tables of one body on a FreeJoint without joint springs (rattle.py, R1;
+    stepper._stage1_tables): C = dc/dv (free_coriolis_jacobian, from M (6, 6) and the angular
+    velocity w), M1 (36,) = M + h/2 C row by row, F1 (6,) = F / 2."""
+    free_coriolis_jacobian(M, w, C)
+    c = 0.5 * h
+    for i in range(6):
+        for j in range(6):
+            M1[6 * i + j] = M[i, j] + c * C[i, j]
+        F1[i] = 0.5 * F[i]
+
+
+@kernel
 def given_poses(W):
     """The fixed and articulated bodies' poses from DART's transforms TG (4 x 4); returns whether a
     fixed body moved since the last call (its unbounded pieces' exact boxes are then stale)."""

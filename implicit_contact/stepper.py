@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+import copy
 import math
 import warnings
 
@@ -191,6 +192,7 @@ BUDGET_EXHAUSTED = "BUDGET_EXHAUSTED"   # StepReport.status of a step that spent
 # units) can fix a residual of O(h^2). The solver's default descent test (rho = 1e-8) rejects such
 # steps as "too long for the residual"; rho = 1e-24 still caps steps at ~1e6 for a 1e-5 residual.
 DEFAULT_SOLVER = ncp.SolverOptions(tol=1e-10, max_iterations=50, descent_rho=1e-24, shorten_nonfinite=True)
+_NO_AXIS = np.zeros(3)   # (rattle.start_frame of a 2D pair: no tangent axis)
 _AXIS_LIMIT = 0.7   # |axis . normal| above which a pair's tangent axis is chosen anew
 # [m/s] a pair's impulse unit is at least its smaller mass times this (_pair_spec). Measured on the
 # face-contact campaign: with the unit m h g alone, 9 of its 11 StepFailures were at h < 3e-4 (stacks,
@@ -914,10 +916,10 @@ class ImplicitContactStepper:
             if not k:
                 continue
             if rec.kind == adapter.FREE and rec.spring_damper is None:     # (MB then holds DART's M)
-                C = self._coriolis
-                sk.free_coriolis_jacobian(w.MB[mo:mo + k * k].reshape(k, k), w.V[o:o + 3], C)
-            else:
-                C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
+                sk.free_stage1_tables(w.MB[mo:mo + k * k].reshape(k, k), w.V[o:o + 3], w.FB[o:o + k], h, self._coriolis,
+                                      w.MB1[mo:mo + k * k], w.FB1[o:o + k])
+                continue
+            C = adapter.coriolis_jacobian(rec, w.V[o:o + k])
             M1 = w.MB[mo:mo + k * k].reshape(k, k) + 0.5 * h * C
             w.FB1[o:o + k] = 0.5 * w.FB[o:o + k]
             if rec.spring_damper is not None:
@@ -961,7 +963,10 @@ class ImplicitContactStepper:
         d = spec.dim
         if spec.tangent_axis is None and d == 3:
             spec.tangent_axis = fm._least_aligned_axis(normal / np.linalg.norm(normal))
-        return rattle.start_frame(a1, a2, normal, spec.tangent_axis, poses[first.body][1], poses[second.body][1], d)
+        out = np.empty(15)
+        axis = spec.tangent_axis if d == 3 else _NO_AXIS
+        rattle.start_frame(a1, a2, normal, axis, poses[first.body][1], poses[second.body][1], d, out)
+        return out
 
     def _stage2(self, problem, z, att, u, hf, joints):
         """(rattle.Stage2 of the pairs closed at q+ and the joint rows, the closed pairs (index,
@@ -1069,7 +1074,22 @@ class ImplicitContactStepper:
 
     def _split_contacts(self, contacts, closed, stage2, x):
         """Stage 1's contact reports with the step's total impulses of the closed pairs (stage 2);
-        lazily made (_LazyContacts) if stage 1's are."""
+        lazily made (_LazyContacts) if stage 1's are, from a copy of what they read of stage2
+        (the next step refreshes the kept stage 2 in place: _stage2)."""
+        if isinstance(contacts, _LazyContacts):
+            frozen = copy.copy(stage2)
+            frozen.G = stage2.G.copy()
+            contacts.pending = lambda: self._split_updates(closed, frozen, x)
+            return contacts
+        contacts = list(contacts)
+        for k, changes in self._split_updates(closed, stage2, x).items():
+            contacts[k] = replace(contacts[k], **changes)
+        return tuple(contacts)
+
+    @staticmethod
+    def _split_updates(closed, stage2, x) -> dict:
+        """Per closed pair index the fields of its contact report that stage 2's solution x sets:
+        the total impulses, the slip at v+, the layer's and the core's shares."""
         v = x[:stage2.nv]
         P_all = stage2.impulses(x)
         cores = stage2.core_impulses(x, P_all)
@@ -1082,13 +1102,7 @@ class ImplicitContactStepper:
             slip = float(np.hypot(G[1] @ v, G[2] @ v)) if cp.dim == 3 else float(abs(G[1] @ v))
             updates[k] = dict(p_n=cp.s_p * P[0], p_t=cp.s_p * P[1], p_o=cp.s_p * P[2], p_r=cp.s_p * cp.e_r * P[3],
                               slip=slip, p_spring=cp.s_p * (P[0] - core), p_core=cp.s_p * core)
-        if isinstance(contacts, _LazyContacts):
-            contacts.updates = updates
-            return contacts
-        contacts = list(contacts)
-        for k, changes in updates.items():
-            contacts[k] = replace(contacts[k], **changes)
-        return tuple(contacts)
+        return updates
 
     # -- a step that repeats the last one's structure ---------------------------------------------
     def _context(self, h, candidates, pairs, problem, att) -> "_Context":
@@ -2335,7 +2349,7 @@ class _LazyContacts(Sequence):
         self._args = (stepper, problem, z, specs, problem.specs)
         self._items = None
         self._rep = rep
-        self.updates = {}      # per pair index, fields that replace the report's (order 2's stage 2)
+        self.pending = None    # () -> per pair index, fields that replace the report's (order 2's stage 2)
 
     def _made(self):
         if self._items is None:
@@ -2346,12 +2360,12 @@ class _LazyContacts(Sequence):
             try:
                 made = [stepper._contact_report(problem, z, k, spec, problem.unpack_pair(z, k))
                         for k, spec in enumerate(specs)]
-                for k, changes in self.updates.items():
+                for k, changes in (self.pending() if self.pending is not None else {}).items():
                     made[k] = replace(made[k], **changes)
                 self._items = tuple(made)
             finally:
                 problem._rep[:], problem._rep_at, problem._reports_np, problem.specs = saved
-            self._args = None
+            self._args = self.pending = None
         return self._items
 
     def __getitem__(self, k):

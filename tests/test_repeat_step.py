@@ -227,6 +227,32 @@ def test_the_repeated_steps_report_is_a_step_report_like_any_other():
     assert report.time == pytest.approx(world.getTime()) and report.message.startswith("Converged in ")
 
 
+def test_order_2_reports_read_later_are_the_ones_read_at_once():
+    """Order 2's reports carry stage 2's total impulses and slip (stepper._split_contacts), made
+    when first read from a copy of what they need of stage 2, whose arrays the next step
+    refreshes in place (rattle.Stage2.refresh). On the rocking ellipsoid (every step a repeat
+    step, the same stage 2 refreshed): reports read after 40 more steps equal those read at once,
+    and stage 2's impulses are not stage 1's (which the reports would hold without them)."""
+    def fields(report):
+        return [(c.p_n, c.p_t, c.p_o, c.p_r, c.slip, c.gap, tuple(c.a1)) for c in report.contacts]
+
+    def run(read_at_once):
+        world, stepper, _ = _ellipsoid(ORDER_2)
+        kept, stage2 = [], []
+        for _ in range(40):
+            report = stepper.step()
+            kept.append(fields(report) if read_at_once else report)
+            stage2.append(stepper._stage2_kept)
+        return ([fields(r) for r in kept] if not read_at_once else kept), stage2
+
+    at_once, stage2 = run(True)
+    later, _ = run(False)
+    assert all(len(r) == 1 and r[0][0] > 0.0 for r in at_once), "the ellipsoid should rest on the plane"
+    assert len({id(s) for s in stage2[5:]}) == 1, "stage 2 should be refreshed in place step after step"
+    assert later == at_once
+    assert len({r[0][0] for r in at_once}) > 1 and len({r[0][4] for r in at_once}) > 1
+
+
 def test_a_general_steps_reports_read_later_are_the_ones_read_at_once():
     """The general step's contact reports are made when first read (stepper._LazyContacts, since
     _solution); its problem is cached and refreshed by the steps after it, with their own specs.
