@@ -681,18 +681,25 @@ _ORIGIN = np.zeros(3)
 
 def origin_and_jacobian(body: BodyRecord):
     """(origin p (3,), DART's world Jacobian of the origin (6, k), angular rows first) of a mobile
-    body now. A FREE body's are its positions' last three and I6 (check_free_joint_convention):
-    exactly DART's p, and the Jacobian the stepper's rows take for it (DART's own carries
-    round-off up to 2e-15), without the two calls into DART (~10 us of a rocking ellipsoid's
-    order-2 step)."""
+    body now. A FREE body's are its positions' last three and I6 (check_free_joint_convention),
+    a PLANAR body's (x, y, 0) and the constant map of [x, y, theta] (z rotation, x and y
+    translation): exactly DART's p, and the Jacobians the stepper's rows take for them (DART's own
+    carry round-off up to 2e-15), without the two calls into DART (~10 us of a rocking
+    ellipsoid's order-2 step)."""
     if body.kind == FREE:
         return body.skeleton.getPositions()[3:6], _EYE6
+    if body.kind == PLANAR:
+        q = body.skeleton.getPositions()
+        return np.array([q[0], q[1], 0.0]), _PLANAR_J
     T = body.body_node.getTransform().matrix()
     return T[:3, 3].copy(), body.skeleton.getWorldJacobian(body.body_node, _ORIGIN)
 
 
 _EYE6 = np.eye(6)
 _EYE6.flags.writeable = False
+_PLANAR_J = np.zeros((6, 3))
+_PLANAR_J[2, 2] = _PLANAR_J[3, 0] = _PLANAR_J[4, 1] = 1.0
+_PLANAR_J.flags.writeable = False
 
 
 def body_pose(body: BodyRecord):

@@ -69,6 +69,40 @@ def test_free_body_coriolis_jacobian_matches_darts_central_differences():
         assert np.max(np.abs(by_differences[:, 3:])) <= RTOL_CORIOLIS * np.max(np.abs(by_differences))
 
 
+ATOL_ORIGIN_JACOBIAN = 1e-14   # DART's world Jacobian of a FREE / PLANAR origin carries round-off (~2e-15)
+
+
+def test_origin_and_jacobian_of_free_and_planar_bodies_are_darts():
+    """dart_adapter.origin_and_jacobian (stage 2's bodies at q+) gives a FREE or PLANAR body's
+    origin and world Jacobian in closed form: the origin exactly DART's, the Jacobian DART's to
+    round-off, after random poses, velocities and position integrations."""
+    import dartpy as dart
+    from implicit_contact import dart_adapter as adapter
+    rng = np.random.default_rng(11)
+    free = dart.dynamics.Skeleton("free_probe")
+    _, free_body = free.createFreeJointAndBodyNodePair()
+    planar = dart.dynamics.Skeleton("planar_probe")
+    joint, planar_body = planar.createPlanarJointAndBodyNodePair()
+    joint.setXYPlane()
+    origin = np.zeros(3)
+    for skel, body, kind, k in ((free, free_body, adapter.FREE, 6), (planar, planar_body, adapter.PLANAR, 3)):
+        for _ in range(50):
+            skel.setPositions(3.0 * rng.normal(size=k))
+            skel.setVelocities(rng.normal(size=k))
+            skel.integratePositions(rng.uniform(1e-4, 1e-2))
+            rec = _BodyProbe(body, skel, kind)
+            p, J = adapter.origin_and_jacobian(rec)
+            assert np.array_equal(p, body.getTransform().matrix()[:3, 3])
+            assert np.max(np.abs(J - skel.getWorldJacobian(body, origin))) <= ATOL_ORIGIN_JACOBIAN
+
+
+class _BodyProbe:
+    """What origin_and_jacobian reads of a dart_adapter.BodyRecord."""
+
+    def __init__(self, body_node, skeleton, kind):
+        self.body_node, self.skeleton, self.kind = body_node, skeleton, kind
+
+
 RTOL_KICK = 1e-12           # round-off of a 6 x 6 LU solve against numpy's
 
 
