@@ -332,8 +332,12 @@ class Stage2:
 
     def _pair_parameters(self):
         """pf (rows/velocity.py) of the pairs."""
+        pf = self.pf
         for k, cp in enumerate(self.pairs):
-            self.pf[k] = (cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p, *cp.R1, cp.load, cp.damp)
+            row = pf[k]
+            row[rv.V_MU], row[rv.V_ET], row[rv.V_EO], row[rv.V_ER], row[rv.V_SP] = cp.mu, cp.e_t, cp.e_o, cp.e_r, cp.s_p
+            row[rv.V_R1:rv.V_R1 + 4] = cp.R1
+            row[rv.V_LOAD], row[rv.V_DAMP] = cp.load, cp.damp
 
     def fun(self, x):
         rv.stage2_rows(x, self.M, self.u, self.hf, self.scale, self.G, self.pi, self.pf, self.jg, self.ju, self.jk,
