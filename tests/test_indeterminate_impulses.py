@@ -100,7 +100,10 @@ def _without(monkeypatch, recovery_function):
 def test_the_proximal_re_solve_lands_the_sliding_table_without_halving(monkeypatch):
     """From the default (sliding) start the landing step stalls next to a solution; the proximal
     re-solve finishes it at h, and without that recovery the step is halved once (measured: 2
-    proximal re-solves in the landing; the endgame alone leaves it at 2 substeps)."""
+    proximal re-solves in the landing). The solver's min-map endgame is left out here: since its
+    watchdog (ncp.newton_min_map) it finishes this landing at h on its own, before the recovery
+    is asked (the endgame's own test is below)."""
+    monkeypatch.setattr(step_solver, "ENDGAME_RESIDUAL", -1.0)
     retries = []
     proximal, original = recovery.indeterminate_impulses, recovery.RECOVERIES
 
@@ -121,7 +124,9 @@ def test_the_compiled_proximal_solve_is_the_python_drivers_bit_for_bit(monkeypat
     """step_solver.solve(proximal=True) on a dense problem solves each regularised problem of
     ncp.solve_proximal in one compiled call (step_solver._solve_regularised); it must be the
     Python driver's solve (ncp.solve_mcp on F + W (. - x_k) and J + diag(W)) bit for bit: the
-    landing table's proximal re-solves, each repeated both ways from the same start."""
+    landing table's proximal re-solves, each repeated both ways from the same start (the min-map
+    endgame left out, which finishes the landing without them: previous test)."""
+    monkeypatch.setattr(step_solver, "ENDGAME_RESIDUAL", -1.0)
     captured = []
     original = step_solver.solve
 
@@ -162,7 +167,10 @@ def test_the_min_map_endgame_alone_lands_the_table_without_halving(monkeypatch, 
     """Without indeterminate_impulses, the solves that stall next to a solution (natural residual
     <= step_solver.ENDGAME_RESIDUAL, J singular along the warp mode and the shared tangential
     impulses) are finished by ncp.newton_min_map's least-norm steps: the landing needs no halving,
-    and the table rests on its weight as above (measured: 4 of 5 endgames converged)."""
+    and the table rests on its weight as above (measured where this was written: 4 of 5 endgames
+    converged; on an AMD EPYC, 2026-12-07, both endgames stopped at 5e-10 and 7e-9 > tol and the
+    landing was halved, until the endgame's watchdog: now its one endgame converges in 3 steps,
+    one of them the watchdog's, NWN)."""
     _without(monkeypatch, recovery.indeterminate_impulses)
     calls = []
     endgame = ncp.newton_min_map

@@ -614,6 +614,48 @@ def test_min_map_newton_does_not_claim_a_system_without_solution():
     assert r.residual >= 1.0 - 1e-12
 
 
+WATCHDOG_K = 1e4            # the steep row's weight: every shorter step of the first Newton step fails
+
+
+def _steep(trap=False):
+    """F = (K (x2 - x1^2), 1 - x1), solution (1, 1). From (-9, 81) Newton's step (10, -180)
+    raises ||F||_inf from 10 to 1e6 at full length and to 244 at 1/64 (the curvature K d1^2 t^2
+    beats the linear decrease), but the full step puts x1 = 1 and the next step is exact. trap:
+    F2 + 1000 where x1 > 0.5, so no step from there comes back below 10."""
+    def fun(x):
+        return np.array([WATCHDOG_K * (x[1] - x[0] ** 2), 1.0 - x[0] + (1e3 if trap and x[0] > 0.5 else 0.0)])
+
+    def jac(x):
+        return np.array([[-2.0 * WATCHDOG_K * x[0], WATCHDOG_K], [-1.0, 0.0]])
+    return fun, jac, np.array([-9.0, 81.0])
+
+
+def test_min_map_newton_watchdog_takes_a_refused_full_step_that_the_next_step_redeems(monkeypatch):
+    """No length of the first step lowers ||r||; the watchdog's full step (W) does not either,
+    but the Newton step after it (N) lands on the solution (to round-off, which one more N
+    removes). Without the watchdog the endgame
+    stops at its start."""
+    from implicit_contact import ncp
+    fun, jac, x0 = _steep()
+    r = newton_min_map(fun, jac, x0, -np.inf, np.inf, ENDGAME_TOL)
+    assert r.success and r.steps[:2] == "WN" and r.iterations <= 3      # (a last N for round-off: K = 1e4)
+    np.testing.assert_allclose(r.x, [1.0, 1.0], atol=ENDGAME_TOL)
+    assert r.merit_history[0] == 10.0 and r.merit_history[1] == pytest.approx(1e6)
+    monkeypatch.setattr(ncp, "ENDGAME_WATCHDOG", 0)
+    r = newton_min_map(fun, jac, x0, -np.inf, np.inf, ENDGAME_TOL)
+    assert r.status is Status.LINE_SEARCH_FAILED and r.steps == "" and np.array_equal(r.x, x0)
+
+
+def test_min_map_newton_watchdog_that_does_not_redeem_returns_to_the_iterate_before_it():
+    """With the trap no step after the watchdog's comes below the residual before it: the
+    endgame returns that iterate (the start), its residual and no steps, LINE_SEARCH_FAILED."""
+    fun, jac, x0 = _steep(trap=True)
+    r = newton_min_map(fun, jac, x0, -np.inf, np.inf, ENDGAME_TOL)
+    assert r.status is Status.LINE_SEARCH_FAILED and not r.success
+    assert np.array_equal(r.x, x0) and r.residual == 10.0 and r.steps == "" and r.merit_history == (10.0,)
+    assert r.nfev > 5                  # (the watchdog's steps were evaluated)
+
+
 def test_min_map_newton_reports_nan_as_not_finite():
     r = newton_min_map(lambda x: np.array([np.nan]), lambda x: np.ones((1, 1)), [0.0], -np.inf, np.inf, 1e-10)
     assert r.status is Status.NOT_FINITE and not r.success
