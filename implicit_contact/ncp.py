@@ -1131,17 +1131,16 @@ def newton_min_map(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
     watch, best = 0, None       # a watchdog's steps left and the iterate before it (x, F, r, steps, history)
     watched = False
     for _ in range(max_iterations):
-        if best is not None and r < best[2]:
-            watch, best = 0, None                   # the watchdog's steps came below: go on from here
-        if r <= tol:
-            break
         if best is not None:
-            if watch == 0:                          # they did not: back to the iterate before them
-                x, F, r, steps, history = best
-                best = None
+            if r < best[2]:
+                best = None                         # the watchdog's steps came below: go on from here
+            elif watch == 0:
                 status, why = Status.LINE_SEARCH_FAILED, "no step length lowered the residual (watchdog tried)."
                 break
-            watch -= 1
+            else:
+                watch -= 1
+        if r <= tol:
+            break
         y = x - F
         at_lo = y <= lo
         at_hi = (y >= hi) & ~at_lo
@@ -1153,9 +1152,6 @@ def newton_min_map(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
             raise ValueError(f"jac(x) must return shape ({n}, {n}), got {J.shape}")
         if not np.isfinite(J).all():
             status, why = Status.NOT_FINITE, "J is not finite."
-            if best is not None:                    # (at the watchdog's iterate: back to the one before)
-                x, F, r, steps, history = best
-                status, why = Status.LINE_SEARCH_FAILED, "J is not finite after the watchdog's step."
             break
         d = np.zeros(n)
         d[at_lo], d[at_hi] = lo[at_lo] - x[at_lo], hi[at_hi] - x[at_hi]
@@ -1175,7 +1171,7 @@ def newton_min_map(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
                     x, F, r, taken = xt, Ft, rt, True
                     break
             t *= 0.25
-        if not taken and full is not None and best is None and not watched and ENDGAME_WATCHDOG > 0:
+        if not taken and full is not None and not watched and ENDGAME_WATCHDOG > 0:
             # the watchdog: the full step, the iterate before it kept
             best, watch, watched = (x, F, r, steps, list(history)), ENDGAME_WATCHDOG, True
             x, F, r = full
@@ -1183,16 +1179,15 @@ def newton_min_map(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.nd
             history.append(r)
             continue
         if not taken:
-            if best is not None:                    # a watchdog step whose line search failed
-                x, F, r, steps, history = best
-                best = None
             status, why = Status.LINE_SEARCH_FAILED, "no step length lowered the residual."
             break
         steps += "N"
         history.append(r)
-    else:
-        if best is not None and r >= best[2]:        # max_iterations within the watchdog's steps
-            x, F, r, steps, history = best
+    if best is not None and r >= best[2]:
+        # the watchdog's steps did not come below the iterate before them: back to it
+        x, F, r, steps, history = best
+        if status is Status.NOT_FINITE:
+            status, why = Status.LINE_SEARCH_FAILED, "J is not finite after the watchdog's step."
     iterations = len(steps)
     if r <= tol:
         return McpResult(x, F, Status.CONVERGED, iterations, r, tuple(history),

@@ -1040,7 +1040,7 @@ class ImplicitContactStepper:
         skeletons, jrows, jdata = [], [], []
         for i, s in enumerate(att.involved):
             k, o, mo = w.sk_nv[s], w.sk_voff[s], w.sk_moff[s]
-            skeletons.append((w.MB[mo:mo + k * k].reshape(k, k).copy(), u[s], hf[o:o + k]))
+            skeletons.append((w.MB[mo:mo + k * k].reshape(k, k), u[s], hf[o:o + k]))   # (Stage2 copies them)
             rows = joints.get(s)
             if rows is not None:
                 lam1 = z[problem.layout.joint_index[i]]
