@@ -115,6 +115,8 @@ class Attempt:
     strays: set = field(default_factory=set)       # stray_friction: the (problem id, pairs) it restarted
     handover: tuple = ((), ())                     # row_switch_test: (on, off) of the solve it ended
     handed: set = field(default_factory=set)       # row_switch_test: the pairs it switched in this step
+    taken_off: set = field(default_factory=set)    # friction_rows: the pairs (spec keys) whose rows it took off
+    returned: set = field(default_factory=set)     # ... and gave back later in this step (they keep them)
     articulated: bool = False                      # an articulated skeleton takes part (no row_switch_test)
 
 
@@ -126,7 +128,14 @@ def friction_rows(stepper, att: Attempt, problem, result):
     them (sigma is then undetermined: a singular Jacobian; a converged solution with an open
     gap keeps its rows and is checked, |p_t| <= mu p_n, by the stepper). Solved again from the
     current solution (a transfer): a new pair sticking, unless it clearly slides (_clearly_sliding).
-    A solve row_switch_test handed over (HANDED_OVER) is switched as it found, from its iterate."""
+    A solve row_switch_test handed over (HANDED_OVER) is switched as it found, from its iterate.
+
+    A pair whose rows were taken off and given back in this step keeps them: a converged solve
+    in which it has rows and p_n = 0 is the step's answer (the friction rows are satisfied there;
+    only sigma is undetermined). The case: example-robot-data's icub_reduced at t = 0.886 s (h / 16),
+    whose hand touched the ground with p_n = 2e-3 s_p without friction rows and carried 1e-11 with
+    them, the other contacts' friction holding the body: its rows went off and on for ten converged
+    solves, until the eleventh stalled and the step failed (tests/test_recovery.py)."""
     specs = att.specs
     handed = result.status is ncp.Status.HANDED_OVER
     if handed:
@@ -137,10 +146,13 @@ def friction_rows(stepper, att: Attempt, problem, result):
         # (not off at a failed iterate for the pairs the last re-solve gave rows: that re-solve is
         # the other recoveries' case, and taking the rows off again cycles on/off until MAX_SOLVES;
         # a box dropped onto a prism lying on a box)
-        off = [k for k in range(len(specs)) if flags[k] & rk.OFF and (result.success or k not in att.added)]
+        off = [k for k in range(len(specs)) if flags[k] & rk.OFF and (result.success or k not in att.added)
+               and specs[k].key not in att.returned]
         on = [k for k in range(len(specs)) if flags[k] & rk.ON] if result.success else []
     if not (on or off):
         return None
+    att.returned.update(specs[k].key for k in on if specs[k].key in att.taken_off)
+    att.taken_off.update(specs[k].key for k in off)
     att.previous = (problem, result.x if result.success or handed else att.z0)
     att.sliding, att.restarts = _clearly_sliding(stepper, att, problem, result.x, on), 0
     att.added = on
