@@ -12,7 +12,9 @@ so, mostly, is a step whose last allowed solve a recovery still wanted to restar
     friction_rows        any          a touching pair without friction rows, or a pair  tests/test_disc.py (slide to roll),
                                       with rows whose gap opened (sigma undetermined);  tests/test_spheres.py,
                                       a new pair that clearly slides starts sliding     tests/test_rigid3d.py::test_a_new_
-                                      (27 superquadrics dropped into a box)             contact_starts_its_friction_re_...
+                                      (27 superquadrics dropped into a box); rows taken contact_starts_its_friction_re_...,
+                                      off and given back in a step stay (a robot's hand tests/test_recovery.py
+                                      cycling on/off: icub_reduced)
     passed_through       converged    a body wholly through a fixed half-space: the     tests/test_rigid3d.py::test_fast_sphere_
                                       far-side root of eqs (15)-(19) (100 m/s sphere)   does_not_tunnel_through_a_half_space
     release_idle         failed       only pairs without impulse unconverged: parallel  tests/test_face_campaign.py::test_
