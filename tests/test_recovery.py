@@ -14,7 +14,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from implicit_contact import recovery
+from implicit_contact import ncp, recovery
 from implicit_contact.params import Friction
 from implicit_contact.rows import checks as rk
 
@@ -50,7 +50,7 @@ class _Stepper:
 
 
 def _converged(x):
-    return SimpleNamespace(success=True, status=recovery.ncp.Status.CONVERGED, x=np.asarray(x, float))
+    return SimpleNamespace(success=True, status=ncp.Status.CONVERGED, x=np.asarray(x, float))
 
 
 def test_a_pair_whose_rows_came_back_keeps_them_at_a_converged_solve_without_impulse():
